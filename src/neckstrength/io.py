@@ -1,0 +1,301 @@
+"""Data loading and validation.
+
+Every table the package reads goes through :func:`read_table`, which checks the
+columns, the declared units, the types and the ranges of each field, and raises
+:class:`DataValidationError` naming the file, the row (and its line in the file)
+and the field.  Nothing is written by these functions, so a bad input stops a
+run before any output exists.
+
+CSV conventions used throughout ``data/``:
+
+- lines starting with ``#`` are comments (provenance);
+- an optional comment line ``# units: col=unit; col=unit`` declares units; when
+  present, each declared unit must equal the unit the schema expects (so a file
+  in millimetres or kN is rejected instead of silently misread);
+- one header row, then data; an empty field is a missing value.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+
+__all__ = [
+    "DataValidationError",
+    "Column",
+    "Schema",
+    "read_table",
+    "MEASUREMENT_SCHEMA",
+    "ACTIVATION_SCHEMA",
+    "read_measurements",
+    "read_activations",
+]
+
+
+class DataValidationError(ValueError):
+    """A data file failed validation; the message names file, row and field."""
+
+    def __init__(self, path: str | Path, problem: str, row: int | None = None,
+                 line: int | None = None, field_name: str | None = None):
+        self.path = str(path)
+        self.row = row
+        self.line = line
+        self.field = field_name
+        self.problem = problem
+        where = [self.path]
+        if row is not None:
+            where.append(f"row {row}" + (f" (line {line})" if line is not None else ""))
+        if field_name is not None:
+            where.append(f"field '{field_name}'")
+        super().__init__(", ".join(where) + ": " + problem)
+
+
+@dataclass(frozen=True)
+class Column:
+    """Expected column: name, kind ('float', 'int', 'str', 'bool'), unit, range."""
+
+    name: str
+    kind: str = "float"
+    unit: str | None = None
+    min: float | None = None
+    max: float | None = None
+    required: bool = True          # column must be present
+    allow_missing: bool = False    # individual cells may be empty
+    choices: tuple[str, ...] | None = None
+    min_exclusive: bool = False
+
+
+@dataclass(frozen=True)
+class Schema:
+    name: str
+    columns: tuple[Column, ...]
+    unique: tuple[str, ...] = ()
+    allow_extra_columns: bool = True
+    # regex for extra columns that must obey a column template (e.g. participants)
+    pattern_columns: tuple[tuple[str, Column], ...] = field(default_factory=tuple)
+
+    def column(self, name: str) -> Column | None:
+        for c in self.columns:
+            if c.name == name:
+                return c
+        for pat, tmpl in self.pattern_columns:
+            if re.fullmatch(pat, name):
+                return Column(name, tmpl.kind, tmpl.unit, tmpl.min, tmpl.max, False,
+                              tmpl.allow_missing, tmpl.choices, tmpl.min_exclusive)
+        return None
+
+
+_UNIT_ALIASES = {"n": "N", "newton": "N", "newtons": "N", "m": "m", "metre": "m", "meter": "m",
+                 "metres": "m", "meters": "m", "1": "1", "-": "1", "fraction": "1",
+                 "unitless": "1", "dimensionless": "1", "nm": "N*m", "n*m": "N*m", "n m": "N*m"}
+
+
+def _norm_unit(u: str) -> str:
+    u = u.strip()
+    return _UNIT_ALIASES.get(u.lower(), u)
+
+
+def _read_comments(path: Path) -> tuple[list[str], int]:
+    comments: list[str] = []
+    n = 0
+    with open(path, encoding="utf-8") as fh:
+        for line in fh:
+            if line.startswith("#"):
+                comments.append(line.rstrip("\n"))
+                n += 1
+            else:
+                break
+    return comments, n
+
+
+def declared_units(comments: Iterable[str]) -> dict[str, str]:
+    """Parse ``# units: a=N; b=m`` comment lines into a dict."""
+    units: dict[str, str] = {}
+    for c in comments:
+        m = re.match(r"#\s*units\s*:\s*(.*)$", c, flags=re.IGNORECASE)
+        if not m:
+            continue
+        for part in re.split(r"[;,]", m.group(1)):
+            if "=" in part:
+                k, v = part.split("=", 1)
+                units[k.strip()] = v.strip()
+    return units
+
+
+def read_table(path: str | Path, schema: Schema) -> pd.DataFrame:
+    """Read a CSV and validate it against ``schema``.
+
+    Returns a DataFrame with typed columns. Raises :class:`DataValidationError`
+    for a missing file, a missing column, a wrong declared unit, a non-numeric
+    or out-of-range value, a missing required value or a duplicate key.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise DataValidationError(path, "file not found")
+    comments, n_comment = _read_comments(path)
+    try:
+        raw = pd.read_csv(path, comment=None, skiprows=n_comment, dtype=str,
+                          keep_default_na=False, skip_blank_lines=True)
+    except Exception as exc:  # pandas parser errors carry a line number in text
+        raise DataValidationError(path, f"cannot parse CSV ({exc})") from exc
+    raw.columns = [str(c).strip() for c in raw.columns]
+    header_line = n_comment + 1
+
+    for col in schema.columns:
+        if col.required and col.name not in raw.columns:
+            raise DataValidationError(path, f"missing column (expected columns: "
+                                      f"{', '.join(c.name for c in schema.columns if c.required)}; "
+                                      f"found: {', '.join(raw.columns)})",
+                                      line=header_line, field_name=col.name)
+    if len(set(raw.columns)) != len(raw.columns):
+        dup = [c for c in raw.columns if list(raw.columns).count(c) > 1][0]
+        raise DataValidationError(path, "duplicate column", line=header_line, field_name=dup)
+    if not schema.allow_extra_columns:
+        for c in raw.columns:
+            if schema.column(c) is None:
+                raise DataValidationError(path, "unexpected column", line=header_line, field_name=c)
+
+    units = declared_units(comments)
+    for cname, unit in units.items():
+        col = schema.column(cname)
+        if col is None or col.unit is None:
+            continue
+        if _norm_unit(unit) != _norm_unit(col.unit):
+            raise DataValidationError(path, f"declared unit '{unit}' but '{col.unit}' is required "
+                                      f"(convert the values to {col.unit})", field_name=cname)
+
+    out = {}
+    for cname in raw.columns:
+        col = schema.column(cname)
+        values = raw[cname].tolist()
+        if col is None:
+            out[cname] = values
+            continue
+        parsed = []
+        for i, v in enumerate(values):
+            row = i + 1
+            line = header_line + 1 + i
+            v = v.strip()
+            if v == "":
+                if not col.allow_missing:
+                    raise DataValidationError(path, "missing value", row, line, cname)
+                parsed.append(None)
+                continue
+            if col.kind in ("float", "int"):
+                try:
+                    x = float(v)
+                except ValueError:
+                    raise DataValidationError(path, f"'{v}' is not a number", row, line, cname) from None
+                if not math.isfinite(x):
+                    raise DataValidationError(path, f"'{v}' is not a finite number", row, line, cname)
+                if col.kind == "int" and x != int(x):
+                    raise DataValidationError(path, f"'{v}' is not an integer", row, line, cname)
+                unit = f" {col.unit}" if col.unit and col.unit != "1" else ""
+                if col.min is not None and (x < col.min or (col.min_exclusive and x == col.min)):
+                    op = ">" if col.min_exclusive else ">="
+                    raise DataValidationError(path, f"value {v}{unit} out of range (must be {op} {col.min}{unit})",
+                                              row, line, cname)
+                if col.max is not None and x > col.max:
+                    raise DataValidationError(path, f"value {v}{unit} out of range (must be <= {col.max}{unit})",
+                                              row, line, cname)
+                parsed.append(int(x) if col.kind == "int" else x)
+            elif col.kind == "bool":
+                lv = v.lower()
+                if lv not in ("true", "false", "1", "0"):
+                    raise DataValidationError(path, f"'{v}' is not true/false", row, line, cname)
+                parsed.append(lv in ("true", "1"))
+            else:
+                if col.choices is not None and v not in col.choices:
+                    raise DataValidationError(path, f"'{v}' is not one of {', '.join(col.choices)}",
+                                              row, line, cname)
+                parsed.append(v)
+        if col.kind == "float":
+            out[cname] = np.array([np.nan if p is None else p for p in parsed], dtype=float)
+        elif col.kind == "int" and all(p is not None for p in parsed):
+            out[cname] = np.array(parsed, dtype=int)
+        else:
+            out[cname] = parsed
+    df = pd.DataFrame(out, columns=list(raw.columns))
+    for key in schema.unique:
+        if key in df.columns:
+            seen: dict = {}
+            for i, v in enumerate(df[key].tolist()):
+                if v in seen:
+                    raise DataValidationError(path, f"duplicate value '{v}' (first at row {seen[v]})",
+                                              i + 1, header_line + 1 + i, key)
+                seen[v] = i + 1
+    df.attrs["source"] = str(path)
+    df.attrs["comments"] = comments
+    return df
+
+
+# --- measurement files (Table A.2 / A.3 layout: one row per direction, one column per participant)
+
+#: Upper plausibility bound for a maximum isometric neck force, N. The largest
+#: value in Table A.2 is 329 N; published maximal neck strengths of strong adults
+#: stay below about 1 kN at the head, so 2000 N catches unit errors (kN vs N x1000,
+#: or N*m entered as N) without rejecting any plausible measurement.
+MAX_PLAUSIBLE_FORCE_N = 2000.0
+
+MEASUREMENT_SCHEMA = Schema(
+    name="max-force measurements (Table A.2 layout)",
+    columns=(Column("direction", "str"),),
+    unique=("direction",),
+    pattern_columns=((r"S\d+|P[\w-]+|sim[\w-]*|norm|weak", Column("", "float", "N", 0.0, MAX_PLAUSIBLE_FORCE_N,
+                                                                   allow_missing=True, min_exclusive=True)),
+                     (r"avg|sd", Column("", "float", "N", 0.0, MAX_PLAUSIBLE_FORCE_N, allow_missing=True))),
+)
+
+ACTIVATION_SCHEMA = Schema(
+    name="normalised activation at max force (Table A.3 layout)",
+    columns=(Column("direction", "str"),),
+    unique=("direction",),
+    pattern_columns=((r"S\d+|P[\w-]+|sim[\w-]*|norm|weak|avg|sd", Column("", "float", "1", 0.0, 1.0,
+                                                                          allow_missing=True)),),
+)
+
+
+def _participant_columns(df: pd.DataFrame) -> list[str]:
+    return [c for c in df.columns if c not in ("direction", "avg", "sd")]
+
+
+def read_measurements(path: str | Path, directions: Sequence[str] | None = None) -> pd.DataFrame:
+    """Read a max-force table (directions x participants, N) and validate it.
+
+    ``directions``: the known test-direction names; an unknown name is an error
+    naming its row. Returns a DataFrame indexed by direction, one column per
+    participant (avg/sd columns dropped).
+    """
+    df = read_table(path, MEASUREMENT_SCHEMA)
+    cols = _participant_columns(df)
+    if not cols:
+        raise DataValidationError(path, "no participant columns (expected e.g. S003, S004, ...)")
+    for c in cols:
+        if MEASUREMENT_SCHEMA.column(c) is None:
+            raise DataValidationError(path, "participant column names must look like S003, P01, sim or "
+                                      "norm/weak", field_name=c)
+    if directions is not None:
+        known = set(directions)
+        for i, d in enumerate(df["direction"]):
+            if d not in known:
+                raise DataValidationError(path, f"unknown test direction '{d}' (known: {', '.join(directions)})",
+                                          i + 1, None, "direction")
+    return df.set_index("direction")[cols]
+
+
+def read_activations(path: str | Path, directions: Sequence[str] | None = None) -> pd.DataFrame:
+    """Read a normalised-activation table (directions x participants, in [0, 1])."""
+    df = read_table(path, ACTIVATION_SCHEMA)
+    cols = _participant_columns(df)
+    if directions is not None:
+        known = set(directions)
+        for i, d in enumerate(df["direction"]):
+            if d not in known:
+                raise DataValidationError(path, f"unknown test direction '{d}'", i + 1, None, "direction")
+    return df.set_index("direction")[cols]
