@@ -200,7 +200,7 @@ def direction_table(points: pd.DataFrame, head: HeadEllipsoid | None = None,
     return pd.DataFrame(recs)
 
 
-def assign_planes(directions: pd.DataFrame, elevation_bands: Sequence[float] = (-25.0, 20.0),
+def assign_planes(directions: pd.DataFrame, elevation_bands: Sequence[float] = (-30.0, 20.0),
                   azimuth_bands: Sequence[float] = (60.0, 120.0)) -> pd.DataFrame:
     """Membership of each direction in the 3x3 plane grid of Fig. 4.2.
 

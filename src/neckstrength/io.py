@@ -220,7 +220,9 @@ def read_table(path: str | Path, schema: Schema) -> pd.DataFrame:
         elif col.kind == "int" and all(p is not None for p in parsed):
             out[cname] = np.array(parsed, dtype=int)
         else:
-            out[cname] = parsed
+            arr = np.empty(len(parsed), dtype=object)
+            arr[:] = parsed
+            out[cname] = pd.Series(arr, dtype=object)
     df = pd.DataFrame(out, columns=list(raw.columns))
     for key in schema.unique:
         if key in df.columns:
