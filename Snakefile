@@ -1,0 +1,22 @@
+# neckstrength: model-based inference of individual neck muscle strengths (reproduction of the thesis in
+# shared/seed). Run: snakemake -c2   (reduced CI config: snakemake -c2 --configfile config/config.ci.yaml)
+from snakemake.utils import min_version
+
+min_version("8.20")
+
+
+configfile: "config/config.yaml"
+
+
+report: "workflow/report/workflow.rst"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/model.smk"
+include: "workflow/rules/appendix_a.smk"
+
+
+rule all:
+    input:
+        final_outputs(),
+    default_target: True

@@ -1,0 +1,60 @@
+# Config validation, data-set lists and input functions shared by all stages.
+from snakemake.utils import validate
+
+
+validate(config, "../schemas/config.schema.yaml")
+
+NAMED_MODELS = list(config["models"])
+VARIANT_MODELS = [
+    f"{k}-{m}"
+    for k in config["variants"]["kinematic"]
+    for m in config["variants"]["muscles"]
+    if not (k.startswith("p") and m == "sagittal_axial")
+]
+ALL_MODELS = NAMED_MODELS + [v for v in VARIANT_MODELS if v not in NAMED_MODELS]
+MODEL_TABLES = [
+    f"{config['data']['model_dir']}/full_model_{t}.csv"
+    for t in ("muscles", "moment_arms", "coordinates")
+]
+THESIS_TABLES = [
+    f"{config['data']['thesis_dir']}/{t}"
+    for t in (
+        "table_B1_muscles.csv",
+        "errata_B1.csv",
+        "table_B2_groups_s3m24.csv",
+        "table_B4_groups_p3m12.csv",
+        "table_B6_groups_p2m7.csv",
+    )
+]
+
+
+wildcard_constraints:
+    model=r"(p2m7|p3m12|s3m24|[sp][732]-(independent|sagittal_axial|sagittal|anatomical))",
+    named=r"(p2m7|p3m12|s3m24)",
+
+
+def geometry_inputs():
+    g = config["geometry"]
+    return [g["test_points"]] if g.get("test_points") else [g["test_point_spec"]]
+
+
+def thesis_param_table(wildcards):
+    return {
+        "s3m24": f"{config['data']['thesis_dir']}/table_B3_params_s3m24.csv",
+        "p3m12": f"{config['data']['thesis_dir']}/table_B5_params_p3m12.csv",
+        "p2m7": f"{config['data']['thesis_dir']}/table_B7_params_p2m7.csv",
+    }[wildcards.named]
+
+
+def final_outputs():
+    out = [
+        "results/model/full_model.csv",
+        "results/model/momentarm_vs_B1.csv",
+        "results/geometry/directions.csv",
+        "results/appendix_a/fig_A4_radar.png",
+        "results/appendix_a/table_A4.csv",
+    ]
+    out += expand("results/model/{model}/parameters.csv", model=ALL_MODELS)
+    out += expand("results/model/{named}/parameters_vs_thesis.csv", named=NAMED_MODELS)
+    out += expand("results/strength/{model}/baseline.csv", model=ALL_MODELS)
+    return out

@@ -1,0 +1,106 @@
+# Foundation stage: full model, test directions, reduced models and their baseline strength.
+
+
+rule full_model:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+    output:
+        table="results/model/full_model.csv",
+        compare=report(
+            "results/model/momentarm_vs_B1.csv",
+            caption="../report/momentarm_vs_b1.rst",
+            category="Model",
+            subcategory="full model",
+            labels={"table": "moment arms vs Table B.1"},
+        ),
+    log:
+        "logs/model/full_model.log",
+    threads: 1
+    resources:
+        mem_mb=1000,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/full_model.py"
+
+
+rule directions:
+    input:
+        geometry_inputs(),
+    output:
+        report(
+            "results/geometry/directions.csv",
+            caption="../report/directions.rst",
+            category="Model",
+            subcategory="geometry",
+            labels={"table": "test directions"},
+        ),
+    log:
+        "logs/geometry/directions.log",
+    threads: 1
+    resources:
+        mem_mb=500,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/directions.py"
+
+
+rule reduce_model:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+    output:
+        params="results/model/{model}/parameters.csv",
+        jacobian="results/model/{model}/jacobian_T.csv",
+    log:
+        "logs/model/{model}/reduce.log",
+    threads: 1
+    resources:
+        mem_mb=1000,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/reduce_model.py"
+
+
+rule compare_thesis_params:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+        thesis=thesis_param_table,
+    output:
+        report(
+            "results/model/{named}/parameters_vs_thesis.csv",
+            caption="../report/parameters_vs_thesis.rst",
+            category="Model",
+            subcategory="{named}",
+            labels={"model": "{named}", "table": "reduced parameters vs thesis"},
+        ),
+    log:
+        "logs/model/{named}/compare_thesis.log",
+    threads: 1
+    resources:
+        mem_mb=1000,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/compare_thesis_params.py"
+
+
+rule baseline_strength:
+    input:
+        params="results/model/{model}/parameters.csv",
+        directions="results/geometry/directions.csv",
+    output:
+        "results/strength/{model}/baseline.csv",
+    log:
+        "logs/strength/{model}/baseline.log",
+    threads: 1
+    resources:
+        mem_mb=1000,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/baseline_strength.py"
