@@ -4,6 +4,23 @@ from snakemake.utils import validate
 
 validate(config, "../schemas/config.schema.yaml")
 
+
+# Validate the input data at start-up: a malformed file stops the run (naming file, row and field)
+# before any job starts, so no existing output is removed or overwritten.
+from snakemake.exceptions import WorkflowError
+from neckstrength.io import DataValidationError, read_activations, read_measurements
+from neckstrength.geometry import read_point_spec, read_test_points
+
+try:
+    read_measurements(config["data"]["measurements"])
+    read_activations(config["data"]["activations"])
+    if config["geometry"].get("test_points"):
+        read_test_points(config["geometry"]["test_points"])
+    else:
+        read_point_spec(config["geometry"]["test_point_spec"])
+except DataValidationError as exc:
+    raise WorkflowError(f"invalid input data: {exc}") from None
+
 NAMED_MODELS = list(config["models"])
 VARIANT_MODELS = [
     f"{k}-{m}"
