@@ -88,7 +88,7 @@ def test_bad_measurement_file_stops_before_writing(workdir, tmp_path):
             "data/thesis/table_A2_max_force.csv", "data/bad_A2.csv"))
     target = workdir / "results" / "appendix_a" / "table_A4.csv"
     before = target.read_bytes() if target.exists() else None
-    r = run(SNAKEMAKE + ["-c1", "--configfile", "config/bad.yaml", "results/appendix_a/table_A4.csv"], workdir)
+    r = run(SNAKEMAKE + ["results/appendix_a/table_A4.csv", "-c1", "--configfile", "config/bad.yaml"], workdir)
     assert r.returncode != 0
     assert "bad_A2.csv, row 1 (line 2), field 'S005': 'x' is not a number" in r.stdout + r.stderr
     # validation happens at start-up: no job ran, the earlier output is untouched

@@ -43,12 +43,11 @@ def _cmd_directions(args) -> int:
 
 def _cmd_max_wrench(args) -> int:
     from .maxwrench import STATUS_CODES, max_wrench_batch
-    from .model import named_model
-    from .stages import build_directions, full_model_from_config, model_directions
+    from .stages import build_directions, full_model_from_config, model_directions, model_from_config
 
     cfg = load_config(args.config)
     full = full_model_from_config(cfg)
-    model = named_model(full, args.model, cfg["data"]["thesis_dir"])
+    model = model_from_config(full, cfg, args.model)
     f = model.strengths.copy()
     if args.strengths:
         s = pd.read_csv(args.strengths, comment="#")

@@ -152,6 +152,10 @@ B1_SCHEMA = Schema(
      Column("strength_N", "float", "N", 0.0, 5000.0, min_exclusive=True))
     + tuple(Column(f"{j}_{a}", "float", "m", -0.25, 0.25, allow_missing=True) for j in B1_JOINTS for a in AXES),
     unique=("index",))
+IMPLIED_SCHEMA = Schema(
+    "strengths implied by Table B.3",
+    (Column("index", "int", None, 1, 96), Column("name", "str"),
+     Column("implied_strength_N", "float", "N", 0.0, 5000.0, min_exclusive=True)), unique=("index",))
 ERRATA_SCHEMA = Schema(
     "Table B.1 errata",
     (Column("index", "int", None, 1, 96), Column("name", "str"), Column("field", "str"),
@@ -160,16 +164,18 @@ ERRATA_SCHEMA = Schema(
 
 
 def load_full_model(model_dir: str | Path, thesis_dir: str | Path | None = None,
-                    moment_arm_source: str = "b1_where_available",
-                    apply_errata: bool = True) -> FullModel:
+                    moment_arm_source: str = "derived", apply_errata: bool = True,
+                    unprinted_strengths: str = "b3_implied") -> FullModel:
     """Assemble the full model from the derived tables and Table B.1.
 
     ``moment_arm_source``: 'derived' uses the OpenSim-derived moment arms for
     every joint; 'b1_where_available' (default) uses Table B.1's printed values
     (blank = 0) at its three joints for the rows it prints, and derived values
     elsewhere, so that reduced 2- and 3-joint models use the thesis's own
-    numbers. Strengths: B.1 wins where it has a value, otherwise the OpenSim
-    model's maximum isometric force.
+    numbers. Strengths: B.1 wins where it has a value; for the 32 rows B.1 does
+    not print, ``unprinted_strengths`` = 'b3_implied' takes the thesis's own
+    values recovered from Table B.3 (``data/model/b3_implied_strengths.csv``),
+    'osim' the OpenSim model's unscaled maximum isometric force.
     """
     model_dir = Path(model_dir)
     mus = read_table(model_dir / "full_model_muscles.csv", DERIVED_MUSCLES_SCHEMA).sort_values("index")
@@ -187,6 +193,17 @@ def load_full_model(model_dir: str | Path, thesis_dir: str | Path | None = None,
     f = mus["osim_max_isometric_force_N"].to_numpy(float).copy()
     f_src = ["osim" for _ in names]
     ma_src = ["derived" for _ in names]
+    if unprinted_strengths not in ("b3_implied", "osim"):
+        raise ValueError(f"unknown unprinted_strengths {unprinted_strengths!r}")
+    if thesis_dir is not None and unprinted_strengths == "b3_implied":
+        imp = read_table(model_dir / "b3_implied_strengths.csv", IMPLIED_SCHEMA)
+        for r in imp.to_dict("records"):
+            i = int(r["index"]) - 1
+            if _key(r["name"]) != _key(names[i]):
+                raise DataValidationError(imp.attrs["source"], f"name '{r['name']}' does not match '{names[i]}'",
+                                          None, None, "name")
+            f[i] = r["implied_strength_N"]
+            f_src[i] = "table_B3_implied"
 
     if thesis_dir is not None:
         b1 = load_table_b1(thesis_dir, apply_errata=apply_errata)
@@ -217,7 +234,8 @@ def load_full_model(model_dir: str | Path, thesis_dir: str | Path | None = None,
     axes = axes / np.linalg.norm(axes, axis=1, keepdims=True)
     return FullModel(muscles, f, R, centres, axes,
                      {"model_dir": str(model_dir), "thesis_dir": str(thesis_dir),
-                      "moment_arm_source": moment_arm_source, "errata": str(apply_errata)})
+                      "moment_arm_source": moment_arm_source, "errata": str(apply_errata),
+                      "unprinted_strengths": unprinted_strengths})
 
 
 def load_table_b1(thesis_dir: str | Path, apply_errata: bool = True) -> pd.DataFrame:
@@ -248,17 +266,46 @@ def read_grouping(path: str | Path) -> pd.DataFrame:
     return df
 
 
+SUPPLEMENT_SCHEMA = Schema(
+    "grouping supplements",
+    (Column("model", "str"), Column("action", "str", choices=("add", "exclude")),
+     Column("group", "str", allow_missing=True), Column("muscle", "str"), Column("evidence", "str")))
+
+
+def read_grouping_supplements(path: str | Path, model: str) -> pd.DataFrame:
+    df = read_table(path, SUPPLEMENT_SCHEMA)
+    return df[df["model"] == model].reset_index(drop=True)
+
+
+def apply_supplements(table: pd.DataFrame, supplements: pd.DataFrame | None) -> pd.DataFrame:
+    """Add muscles to groups / exclude muscles (group '-') per ``grouping_supplements.csv``."""
+    if supplements is None or len(supplements) == 0:
+        return table
+    t = table[["group", "muscle", "name_normalized"]].copy()
+    keys = [_key(k) for k in t["name_normalized"]]
+    for r in supplements.to_dict("records"):
+        k = _key(r["muscle"])
+        if k in keys:
+            t = t[[kk != k for kk in keys]]
+            keys = [kk for kk in keys if kk != k]
+        g = r["group"] if r["action"] == "add" else "-"
+        t = pd.concat([t, pd.DataFrame([{"group": g, "muscle": r["muscle"], "name_normalized": r["muscle"]}])],
+                      ignore_index=True)
+        keys.append(k)
+    return t
+
+
 def grouping_from_table(full: FullModel, table: pd.DataFrame, split_sides: bool,
                         source: str = "grouping table") -> tuple[np.ndarray, list[str]]:
     """Grouping matrix from a ``group, muscle`` table of base names.
 
     ``split_sides``: one group per side ('hyoids-R', 'hyoids-L'); otherwise left
     and right elements share a group (planar models). Every full-model muscle
-    must belong to exactly one group.
+    must be listed exactly once; group '-' means excluded (a zero row of S).
     """
     bases = [_key(b) for b in full.muscles["base"]]
     sides = list(full.muscles["side"])
-    groups = list(dict.fromkeys(table["group"]))
+    groups = [g for g in dict.fromkeys(table["group"]) if g != "-"]
     labels = [f"{g}-{s}" for g in groups for s in ("R", "L")] if split_sides else groups
     # spatial order: all right groups? The thesis lists R, L alternately (Table B.3).
     S = np.zeros((full.m, len(labels)))
@@ -276,6 +323,8 @@ def grouping_from_table(full: FullModel, table: pd.DataFrame, split_sides: bool,
             raise DataValidationError(source, f"full-model muscle '{full.names[i]}' is in no group",
                                       field_name="muscle")
         g = lookup[b]
+        if g == "-":
+            continue
         col = labels.index(f"{g}-{s}") if split_sides else labels.index(g)
         S[i, col] = 1.0
     return S, labels
@@ -325,7 +374,8 @@ def _signature_grouping(full: FullModel, joints: Sequence[str], use_yaw: bool, s
 
 def grouping_matrix(full: FullModel, variant: str, planar: bool, thesis_dir: str | Path | None = None,
                     signature_joints: Sequence[str] = ("C0-C1", "C4-C5", "C6-C7"),
-                    signature_tol: float = 1e-3) -> tuple[np.ndarray, list[str]]:
+                    signature_tol: float = 1e-3,
+                    supplements: pd.DataFrame | None = None) -> tuple[np.ndarray, list[str]]:
     """Grouping matrix ``S_m`` (96 x g) and group labels for a muscle variant."""
     split = not planar
     if variant == "independent":
@@ -347,7 +397,7 @@ def grouping_matrix(full: FullModel, variant: str, planar: bool, thesis_dir: str
         path = thesis_dir / "table_B6_groups_p2m7.csv"
     else:
         raise ValueError(f"unknown muscle variant {variant!r}; choose from {MUSCLE_VARIANTS}")
-    return grouping_from_table(full, read_grouping(path), split, str(path))
+    return grouping_from_table(full, apply_supplements(read_grouping(path), supplements), split, str(path))
 
 
 def reduce_strengths_and_arms(R: np.ndarray, f: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -360,7 +410,8 @@ def reduce_strengths_and_arms(R: np.ndarray, f: np.ndarray, S: np.ndarray) -> tu
 
 
 def reduce_model(full: FullModel, kinematic: str, grouping: str, thesis_dir: str | Path | None = None,
-                 name: str | None = None, signature_tol: float = 1e-3) -> ReducedModel:
+                 name: str | None = None, signature_tol: float = 1e-3,
+                 supplements: pd.DataFrame | None = None) -> ReducedModel:
     """Kinematic and muscle reduction of the full model (Sec. 4.2.1.3)."""
     if kinematic not in KINEMATIC_VARIANTS:
         raise ValueError(f"unknown kinematic variant {kinematic!r}; choose from {list(KINEMATIC_VARIANTS)}")
@@ -370,7 +421,7 @@ def reduce_model(full: FullModel, kinematic: str, grouping: str, thesis_dir: str
     coords = tuple(f"{j}_{a}" for j in joints for a in axes_kept)
     rows = [COORDINATES.index(c) for c in coords]
     sig_joints = joints if len(joints) <= 3 else ("C0-C1", "C4-C5", "C6-C7")
-    S, labels = grouping_matrix(full, grouping, planar, thesis_dir, sig_joints, signature_tol)
+    S, labels = grouping_matrix(full, grouping, planar, thesis_dir, sig_joints, signature_tol, supplements)
     f_g, R_g = reduce_strengths_and_arms(full.moment_arms[rows], full.strengths, S)
     JT = jacobian_transpose(full.centres[rows], full.axes[rows])
     task = WRENCH_COMPONENTS
@@ -381,13 +432,22 @@ def reduce_model(full: FullModel, kinematic: str, grouping: str, thesis_dir: str
                         f_g, R_g, JT, S, task)
 
 
-def named_model(full: FullModel, model: str, thesis_dir: str | Path | None = None) -> ReducedModel:
-    """One of the thesis's named models (p2m7, p3m12, s3m24) or '{kinematic}-{grouping}'."""
+def named_model(full: FullModel, model: str, thesis_dir: str | Path | None = None,
+                grouping_supplements: bool = True, signature_tol: float = 1e-3) -> ReducedModel:
+    """One of the thesis's named models (p2m7, p3m12, s3m24) or '{kinematic}-{grouping}'.
+
+    For named models, ``grouping_supplements`` applies ``grouping_supplements.csv``
+    (the corrections that make the printed groupings reproduce Tables B.5/B.7).
+    """
     if model in NAMED_MODELS:
         k, g = NAMED_MODELS[model]
-        return reduce_model(full, k, g, thesis_dir, name=model)
+        sup = None
+        if grouping_supplements and thesis_dir is not None \
+                and (Path(thesis_dir) / "grouping_supplements.csv").exists():
+            sup = read_grouping_supplements(Path(thesis_dir) / "grouping_supplements.csv", model)
+        return reduce_model(full, k, g, thesis_dir, name=model, signature_tol=signature_tol, supplements=sup)
     if "-" in model:
         k, g = model.split("-", 1)
-        return reduce_model(full, k, g, thesis_dir, name=model)
+        return reduce_model(full, k, g, thesis_dir, name=model, signature_tol=signature_tol)
     raise ValueError(f"unknown model {model!r}: use {list(NAMED_MODELS)} or '<kinematic>-<grouping>' with "
                      f"kinematic in {list(KINEMATIC_VARIANTS)} and grouping in {MUSCLE_VARIANTS}")

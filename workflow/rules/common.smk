@@ -32,6 +32,8 @@ ALL_MODELS = NAMED_MODELS + [v for v in VARIANT_MODELS if v not in NAMED_MODELS]
 MODEL_TABLES = [
     f"{config['data']['model_dir']}/full_model_{t}.csv"
     for t in ("muscles", "moment_arms", "coordinates")
+] + [
+    f"{config['data']['model_dir']}/b3_implied_strengths.csv"
 ]
 THESIS_TABLES = [
     f"{config['data']['thesis_dir']}/{t}"
@@ -41,6 +43,7 @@ THESIS_TABLES = [
         "table_B2_groups_s3m24.csv",
         "table_B4_groups_p3m12.csv",
         "table_B6_groups_p2m7.csv",
+        "grouping_supplements.csv",
     )
 ]
 

@@ -54,6 +54,7 @@ rule reduce_model:
     output:
         params="results/model/{model}/parameters.csv",
         jacobian="results/model/{model}/jacobian_T.csv",
+        groups="results/model/{model}/groups.csv",
     log:
         "logs/model/{model}/reduce.log",
     threads: 1

@@ -5,4 +5,4 @@ from neckstrength.stages import stage_reduce
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = sys.stdout = log
-    stage_reduce(snakemake.config, snakemake.wildcards.model, snakemake.output.params, snakemake.output.jacobian)
+    stage_reduce(snakemake.config, snakemake.wildcards.model, snakemake.output.params, snakemake.output.jacobian, snakemake.output.groups)
