@@ -38,9 +38,9 @@ def radar_grid(directions: pd.DataFrame, dashed: Mapping[str, pd.Series], solid:
         for c_i, plane in enumerate(row):
             ax = axes[r_i, c_i]
             members = [r for r in recs if plane in str(r["planes"]).split(";")]
-            members.sort(key=lambda r: plane_angle(r, plane))
+            members.sort(key=lambda r: np.mod(plane_angle(r, plane), 2 * np.pi))
             names = [r["name"] for r in members]
-            th = np.array([plane_angle(r, plane) for r in members])
+            th = np.mod(np.array([plane_angle(r, plane) for r in members]), 2 * np.pi)
             if len(names) == 0:
                 ax.set_title(PLANE_TITLES[plane])
                 continue
@@ -54,7 +54,9 @@ def radar_grid(directions: pd.DataFrame, dashed: Mapping[str, pd.Series], solid:
                         label=label if (r_i, c_i) == (0, 0) else None)
             ax.set_xticks(th)
             ax.set_xticklabels(names, fontsize=7)
+            ax.set_xlim(0, 2 * np.pi)
             ax.set_ylim(0, rmax)
+            ax.set_rlabel_position(250)
             ax.tick_params(axis="y", labelsize=6)
             ax.set_title(PLANE_TITLES[plane], fontsize=10, pad=14)
     handles, labels = axes[0, 0].get_legend_handles_labels()
