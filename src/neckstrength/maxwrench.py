@@ -170,3 +170,14 @@ def bootstrap_scale(model: ReducedModel, f_base: np.ndarray, u: np.ndarray, w_me
     if not r.producible:
         raise ValueError(f"model {model.name} cannot produce the bootstrap direction (status {r.status})")
     return float(w_meas / r.w)
+
+
+def solve_max_wrench(model: ReducedModel, F: np.ndarray, U: np.ndarray, alpha_lb=None, alpha_ub=None,
+                     method: str = "highs"):
+    """Entry point used by the pipeline stages; same return convention as :func:`max_wrench_batch`.
+
+    ``method``: 'highs' (one HiGHS solve per LP, reusing the model per direction).
+    """
+    if method != "highs":
+        raise ValueError(f"unknown method {method!r}")
+    return max_wrench_batch(model, F, U, alpha_lb, alpha_ub)

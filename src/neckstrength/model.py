@@ -404,9 +404,13 @@ def reduce_strengths_and_arms(R: np.ndarray, f: np.ndarray, S: np.ndarray) -> tu
     """Sec. 4.2.1.3: ``F_g(i) = ||F . S(:, i)||``, ``R_g(:, i) = (R diag(F) S)(:, i) / F_g(i)``."""
     tau_g = R @ (f[:, None] * S)
     f_g = np.sqrt(((f[:, None] * S) ** 2).sum(axis=0))
-    if np.any(f_g <= 0):
-        raise ValueError("a muscle group has zero strength (empty group?)")
-    return f_g, tau_g / f_g[None, :]
+    if np.any(S.sum(axis=0) == 0):
+        raise ValueError("a muscle group has no members")
+    # a group whose members all have zero strength (e.g. deep extensors scaled by 0) produces no torque;
+    # its grouped moment arm is then undefined and set to 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        R_g = np.where(f_g[None, :] > 0, tau_g / np.where(f_g > 0, f_g, 1.0)[None, :], 0.0)
+    return f_g, R_g
 
 
 def reduce_model(full: FullModel, kinematic: str, grouping: str, thesis_dir: str | Path | None = None,
@@ -430,6 +434,21 @@ def reduce_model(full: FullModel, kinematic: str, grouping: str, thesis_dir: str
         task = PLANAR_COMPONENTS
     return ReducedModel(name or f"{kinematic}-{grouping}", kinematic, grouping, coords, tuple(labels),
                         f_g, R_g, JT, S, task)
+
+
+def scale_strengths(full: FullModel, mask: np.ndarray, factor: float) -> FullModel:
+    """A copy of ``full`` with the strengths of the muscles in ``mask`` multiplied by ``factor``.
+
+    Scaling a group "by scaling all elements in that group individually" (Sec. 4.2.1.3), before reduction,
+    so that it works for every grouping, including groups that mix scaled and unscaled muscles.
+    """
+    if factor < 0:
+        raise ValueError("strength factor must be >= 0")
+    f = full.strengths.copy()
+    f[np.asarray(mask, bool)] *= factor
+    muscles = full.muscles.copy()
+    muscles["strength_N"] = f
+    return FullModel(muscles, f, full.moment_arms, full.centres, full.axes, full.provenance)
 
 
 def named_model(full: FullModel, model: str, thesis_dir: str | Path | None = None,

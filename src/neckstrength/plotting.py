@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import matplotlib
 
@@ -24,15 +24,23 @@ PLANE_TITLES = {
 
 def radar_grid(directions: pd.DataFrame, dashed: Mapping[str, pd.Series], solid: Mapping[str, pd.Series],
                out: str | Path, title: str = "", rmax: float | None = None) -> None:
-    """3x3 grid of radar plots (Fig. 4.2 layout): one polar axis per plane.
+    """3x3 grid of radar plots (Fig. 4.2 layout): dashed traces (e.g. participants) and solid red traces."""
+    series = [(k, v, {"ls": "--", "lw": 1}) for k, v in dashed.items()]
+    series += [(k, v, {"ls": "-", "lw": 2, "color": "red"}) for k, v in solid.items()]
+    radar_grid_series(directions, series, out, title, rmax)
 
-    ``dashed`` / ``solid``: named series indexed by direction name (e.g. the
-    participants' measurements and the model prediction). Directions are placed
-    at their polar angle within each plane.
+
+def radar_grid_series(directions: pd.DataFrame, series: Sequence[tuple[str, pd.Series, dict]], out: str | Path,
+                      title: str = "", rmax: float | None = None, rlabel: str = "") -> None:
+    """3x3 grid of radar plots, one polar axis per plane of Fig. 4.2.
+
+    ``series``: (label, values indexed by direction name, matplotlib kwargs). Directions are placed at
+    their polar angle within each plane (sagittal: x right / y up; transverse: x right / z up;
+    coronal: z right / y up).
     """
     fig, axes = plt.subplots(3, 3, figsize=(12, 12), subplot_kw={"projection": "polar"})
-    allvals = [s.max() for s in list(dashed.values()) + list(solid.values()) if len(s)]
-    rmax = rmax or (1.1 * max(allvals) if allvals else 1.0)
+    allvals = [np.nanmax(s.to_numpy(float)) for _, s, _ in series if len(s)]
+    rmax = rmax or (1.1 * max(allvals) if allvals and max(allvals) > 0 else 1.0)
     recs = directions.to_dict("records")
     for r_i, row in enumerate(PLANE_GRID):
         for c_i, plane in enumerate(row):
@@ -40,30 +48,104 @@ def radar_grid(directions: pd.DataFrame, dashed: Mapping[str, pd.Series], solid:
             members = [r for r in recs if plane in str(r["planes"]).split(";")]
             members.sort(key=lambda r: np.mod(plane_angle(r, plane), 2 * np.pi))
             names = [r["name"] for r in members]
-            th = np.mod(np.array([plane_angle(r, plane) for r in members]), 2 * np.pi)
-            if len(names) == 0:
-                ax.set_title(PLANE_TITLES[plane])
+            ax.set_title(PLANE_TITLES[plane], fontsize=10, pad=14)
+            if not names:
                 continue
+            th = np.mod(np.array([plane_angle(r, plane) for r in members]), 2 * np.pi)
             closed = np.r_[th, th[:1]]
-            for k, (label, s) in enumerate(dashed.items()):
+            for label, s, kw in series:
                 vals = np.array([s.get(n, np.nan) for n in names], float)
-                ax.plot(closed, np.r_[vals, vals[:1]], "--", lw=1, label=label if (r_i, c_i) == (0, 0) else None)
-            for label, s in solid.items():
-                vals = np.array([s.get(n, np.nan) for n in names], float)
-                ax.plot(closed, np.r_[vals, vals[:1]], "-", color="red", lw=2,
-                        label=label if (r_i, c_i) == (0, 0) else None)
+                ax.plot(closed, np.r_[vals, vals[:1]], label=label if (r_i, c_i) == (0, 0) else None, **kw)
             ax.set_xticks(th)
             ax.set_xticklabels(names, fontsize=7)
             ax.set_xlim(0, 2 * np.pi)
             ax.set_ylim(0, rmax)
             ax.set_rlabel_position(250)
             ax.tick_params(axis="y", labelsize=6)
-            ax.set_title(PLANE_TITLES[plane], fontsize=10, pad=14)
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8)
+    fig.legend(handles, labels, loc="lower center", ncol=min(max(len(labels), 1), 6), fontsize=8)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(title + (f" [{rlabel}]" if rlabel else ""))
     fig.tight_layout(rect=(0, 0.04, 1, 0.97))
+    _save(fig, out)
+
+
+def _save(fig, out):
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)
+
+
+def heatmap(table: pd.DataFrame, out: str | Path, title: str, cbar_label: str) -> None:
+    """Muscles x directions heat map with a diverging colour map centred at 0 (Fig. 4.5)."""
+    v = np.nanmax(np.abs(table.to_numpy(float))) or 1.0
+    fig, ax = plt.subplots(figsize=(13, 8))
+    im = ax.imshow(table.to_numpy(float), cmap="RdBu_r", vmin=-v, vmax=v, aspect="auto")
+    ax.set_xticks(range(table.shape[1]))
+    ax.set_xticklabels(table.columns, rotation=75, fontsize=8)
+    ax.set_yticks(range(table.shape[0]))
+    ax.set_yticklabels(table.index, fontsize=8)
+    fig.colorbar(im, ax=ax, label=cbar_label)
+    ax.set_title(title)
+    fig.tight_layout()
+    _save(fig, out)
+
+
+def muscle_radars(directions: Sequence[str], traces: Sequence[tuple[str, pd.DataFrame, dict]], out: str | Path,
+                  title: str) -> None:
+    """One radar per direction, axes = muscles (Fig. 4.6). ``traces``: (label, muscles x directions, kwargs)."""
+    n = len(directions)
+    ncol = min(n, 4)
+    nrow = int(np.ceil(n / ncol)) if n else 1
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4 * ncol, 4 * nrow), subplot_kw={"projection": "polar"},
+                             squeeze=False)
+    for k, dname in enumerate(directions):
+        ax = axes[k // ncol, k % ncol]
+        muscles = list(traces[0][1].index)
+        th = np.linspace(0, 2 * np.pi, len(muscles), endpoint=False)
+        for label, tab, kw in traces:
+            vals = tab[dname].to_numpy(float)
+            ax.plot(np.r_[th, th[:1]], np.r_[vals, vals[:1]], label=label if k == 0 else None, **kw)
+        ax.set_xticks(th)
+        ax.set_xticklabels(muscles, fontsize=6)
+        ax.set_ylim(0, 1)
+        ax.set_title(dname, fontsize=9, pad=12)
+        ax.tick_params(axis="y", labelsize=6)
+    for k in range(n, nrow * ncol):
+        axes[k // ncol, k % ncol].axis("off")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels))
+    fig.suptitle(title)
+    fig.tight_layout(rect=(0, 0.05, 1, 0.95))
+    _save(fig, out)
+
+
+def stacked_share_bars(panels: Sequence[tuple[str, Sequence[str], pd.DataFrame, pd.DataFrame]], out: str | Path,
+                       title: str) -> None:
+    """Grouped bars per direction for several variants (Figs. 4.7/4.8).
+
+    ``panels``: (panel title, variant names, strength at 1x [directions x variants], strength at 0x). The
+    light part of each bar is the strength without deep extensors, the dark part their added contribution.
+    """
+    fig, axes = plt.subplots(len(panels), 1, figsize=(16, 4.5 * len(panels)), squeeze=False)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for p_i, (ptitle, variants, s1, s0) in enumerate(panels):
+        ax = axes[p_i, 0]
+        dirs = list(s1.index)
+        x = np.arange(len(dirs))
+        width = 0.8 / max(len(variants), 1)
+        for k, v in enumerate(variants):
+            base = np.minimum(s0[v].to_numpy(float), s1[v].to_numpy(float))
+            extra = np.clip(s1[v].to_numpy(float) - base, 0, None)
+            xs = x - 0.4 + width * (k + 0.5)
+            ax.bar(xs, base, width, color=colors[k % len(colors)], alpha=0.45, label=f"{v} (0x deep ext.)")
+            ax.bar(xs, extra, width, bottom=base, color=colors[k % len(colors)], alpha=1.0,
+                   label=f"{v}: deep-extensor share")
+        ax.set_xticks(x)
+        ax.set_xticklabels(dirs, rotation=60, fontsize=8)
+        ax.set_ylabel("max force (N)")
+        ax.set_title(ptitle)
+        ax.legend(fontsize=7, ncol=2)
+    fig.suptitle(title)
+    fig.tight_layout(rect=(0, 0, 1, 0.97))
+    _save(fig, out)

@@ -51,6 +51,8 @@ THESIS_TABLES = [
 wildcard_constraints:
     model=r"(p2m7|p3m12|s3m24|[sp][732]-(independent|sagittal_axial|sagittal|anatomical))",
     named=r"(p2m7|p3m12|s3m24)",
+    kinematic=r"[sp][732]",
+    muscles=r"(independent|sagittal_axial|sagittal|anatomical)",
 
 
 def geometry_inputs():
@@ -66,6 +68,36 @@ def thesis_param_table(wildcards):
     }[wildcards.named]
 
 
+CH4_VARIANTS = VARIANT_MODELS
+if config["chapter4"]["reference_variant"] not in CH4_VARIANTS:
+    CH4_VARIANTS = CH4_VARIANTS + [config["chapter4"]["reference_variant"]]
+
+
+def surface_path(variant, kind):
+    kinematic, muscles = variant.split("-", 1)
+    return f"results/chapter4/{kinematic}/{muscles}/{kind}.csv"
+
+
+def reference_surface(kind):
+    return surface_path(config["chapter4"]["reference_variant"], kind)
+
+
+def chapter4_surface_inputs(wildcards):
+    out = {}
+    for v in CH4_VARIANTS:
+        out[f"{v}__strength"] = surface_path(v, "strength")
+        out[f"{v}__activation"] = surface_path(v, "activation")
+    return out
+
+
+def chapter4_outputs():
+    return [
+        "results/chapter4/claims.csv",
+        "results/chapter4/fig_4_7_kinematic_complexity.png",
+        "results/chapter4/fig_4_3_deep_extensor_activation.png",
+    ]
+
+
 def final_outputs():
     out = [
         "results/model/full_model.csv",
@@ -77,4 +109,5 @@ def final_outputs():
     out += expand("results/model/{model}/parameters.csv", model=ALL_MODELS)
     out += expand("results/model/{named}/parameters_vs_thesis.csv", named=NAMED_MODELS)
     out += expand("results/strength/{model}/baseline.csv", model=ALL_MODELS)
+    out += chapter4_outputs()
     return out

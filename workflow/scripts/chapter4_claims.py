@@ -1,0 +1,11 @@
+# Thin rule script: reads snakemake.input/output/config and calls one package function.
+import sys
+
+from neckstrength.stages import stage_chapter4_claims
+
+with open(snakemake.log[0], "w") as log:
+    sys.stderr = sys.stdout = log
+    inp = snakemake.input
+    variants = sorted({k.split("__")[0] for k in inp.keys() if "__" in k})
+    surfaces = {v: (inp[f"{v}__strength"], inp[f"{v}__activation"]) for v in variants}
+    stage_chapter4_claims(snakemake.config, surfaces, inp.directions, inp.slopes, snakemake.output[0])
