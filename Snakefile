@@ -14,6 +14,7 @@ report: "workflow/report/workflow.rst"
 include: "workflow/rules/common.smk"
 include: "workflow/rules/model.smk"
 include: "workflow/rules/appendix_a.smk"
+include: "workflow/rules/chapter3.smk"
 include: "workflow/rules/chapter4.smk"
 
 

@@ -110,4 +110,5 @@ def final_outputs():
     out += expand("results/model/{named}/parameters_vs_thesis.csv", named=NAMED_MODELS)
     out += expand("results/strength/{model}/baseline.csv", model=ALL_MODELS)
     out += chapter4_outputs()
+    out += chapter3_outputs()
     return out

@@ -1,0 +1,8 @@
+# Thin rule script: reads snakemake.input/output/config and calls one package function.
+import sys
+
+from neckstrength.mfi.stages import stage_table_3_2
+
+with open(snakemake.log[0], "w") as log:
+    sys.stderr = sys.stdout = log
+    stage_table_3_2(snakemake.config, snakemake.input.data, snakemake.output.table, snakemake.output.figure)
