@@ -16,6 +16,7 @@ include: "workflow/rules/model.smk"
 include: "workflow/rules/appendix_a.smk"
 include: "workflow/rules/chapter3.smk"
 include: "workflow/rules/chapter4.smk"
+include: "workflow/rules/chapter5.smk"
 
 
 rule all:

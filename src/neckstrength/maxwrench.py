@@ -173,11 +173,26 @@ def bootstrap_scale(model: ReducedModel, f_base: np.ndarray, u: np.ndarray, w_me
 
 
 def solve_max_wrench(model: ReducedModel, F: np.ndarray, U: np.ndarray, alpha_lb=None, alpha_ub=None,
-                     method: str = "highs"):
-    """Entry point used by the pipeline stages; same return convention as :func:`max_wrench_batch`.
+                     method: str = "auto", return_alpha: bool = True, chunk_size: int = 65536, cache=None):
+    """Entry point used by every pipeline stage; same return convention as :func:`max_wrench_batch`.
 
-    ``method``: 'highs' (one HiGHS solve per LP, reusing the model per direction).
+    ``method``: 'batched' (:mod:`neckstrength.batched`, exact, cached optimal bases), 'highs' (one HiGHS
+    solve per LP) or 'auto' (batched when available). ``cache``: a :class:`neckstrength.batched.BasisCache` to keep bases across
+    calls (e.g. across ABC iterations). With ``return_alpha=False`` the activations are not computed
+    and ``None`` is returned in their place.
     """
+    if method == "auto":
+        try:
+            from .batched import max_wrench_batched  # noqa: F401
+            method = "batched"
+        except ImportError:
+            method = "highs"
+    if method == "batched":
+        from .batched import max_wrench_batched
+
+        return max_wrench_batched(model, F, U, alpha_lb, alpha_ub, chunk_size=chunk_size, cache=cache,
+                                  return_alpha=return_alpha)
     if method != "highs":
         raise ValueError(f"unknown method {method!r}")
-    return max_wrench_batch(model, F, U, alpha_lb, alpha_ub)
+    w, alpha, status = max_wrench_batch(model, F, U, alpha_lb, alpha_ub)
+    return w, (alpha if return_alpha else None), status

@@ -52,6 +52,7 @@ wildcard_constraints:
     model=r"(p2m7|p3m12|s3m24|[sp][732]-(independent|sagittal_axial|sagittal|anatomical))",
     named=r"(p2m7|p3m12|s3m24)",
     kinematic=r"[sp][732]",
+    dataset=r"(norm|weak|[A-Za-z][A-Za-z0-9_-]*)",
     muscles=r"(independent|sagittal_axial|sagittal|anatomical)",
 
 
@@ -98,6 +99,32 @@ def chapter4_outputs():
     ]
 
 
+CH5_MODELS = list(config["chapter5"]["models"])
+CH5_DATASETS = list(config["chapter5"]["datasets"])
+
+
+def chapter5_dataset_list(wildcards):
+    return CH5_DATASETS
+
+
+def chapter5_estimates(wildcards):
+    return [f"results/chapter5/{wildcards.named}/{d}/estimate.csv" for d in CH5_DATASETS]
+
+
+def chapter5_summaries(wildcards):
+    return [f"results/chapter5/{wildcards.named}/{d}/summary.json" for d in CH5_DATASETS]
+
+
+def chapter5_outputs():
+    out = expand("results/chapter5/{named}/table_vs_thesis.csv", named=CH5_MODELS)
+    out += expand(
+        "results/chapter5/{named}/{dataset}/fig_estimate_traces.png",
+        named=CH5_MODELS,
+        dataset=CH5_DATASETS,
+    )
+    return out
+
+
 def final_outputs():
     out = [
         "results/model/full_model.csv",
@@ -110,5 +137,6 @@ def final_outputs():
     out += expand("results/model/{named}/parameters_vs_thesis.csv", named=NAMED_MODELS)
     out += expand("results/strength/{model}/baseline.csv", model=ALL_MODELS)
     out += chapter4_outputs()
+    out += chapter5_outputs()
     out += chapter3_outputs()
     return out

@@ -1,0 +1,128 @@
+"""Data sets for the estimators (Chapters 5 and 6): simulated and measured maximum wrenches.
+
+- Simulated 'norm' / 'weak' (Sec. 5.3): the 'actual' strengths f_a printed in the thesis's result
+  tables (5.1 p2m7, 5.2 p3m12, 5.3 s3m24, 6.1 p2m7 'Sim'); measurements are the model's exact max
+  wrenches at f_a; activation bounds for the EMG-recorded groups come from the activations at f_a
+  (a band of configurable half-width around them).
+- Participants S003-S007 (Table A.2): forces in N converted to wrench magnitudes along the unit
+  wrenches; planar models use the 7 sagittal directions. Table A.3 has one activation per direction
+  and participant, not per muscle: by default it does not bound the LP (config ``emg``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from .abc import Dataset
+from .io import read_activations, read_measurements
+from .maxwrench import STATUS_CODES, solve_max_wrench
+from .model import ReducedModel
+
+WRENCH = ("Mx", "My", "Mz", "Fx", "Fy", "Fz")
+RESULT_TABLES = {"p2m7": "table_5_1_p2m7.csv", "p3m12": "table_5_2_p3m12.csv", "s3m24": "table_5_3_s3m24.csv"}
+ABBREV_TABLE = {"p2m7": "Table 5.1", "p3m12": "Table 5.2", "s3m24": "Table 5.3"}
+
+
+def model_directions_table(model: ReducedModel, directions: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray]:
+    d = directions[directions["sagittal"]] if model.planar else directions
+    d = d.reset_index(drop=True)
+    return d, model.task_direction(d[[f"u_{c}" for c in WRENCH]].to_numpy(float))
+
+
+def thesis_result_table(thesis_dir: str | Path, model_name: str, table: str | None = None) -> pd.DataFrame:
+    """A thesis result table (long format) with the muscle abbreviations mapped to our group names."""
+    thesis_dir = Path(thesis_dir)
+    table = table or RESULT_TABLES[model_name]
+    t = pd.read_csv(thesis_dir / table, comment="#")
+    ab = pd.read_csv(thesis_dir / "muscle_abbreviations.csv", comment="#")
+    label = {"table_6_1_p2m7_sequential.csv": "Table 6.1"}.get(table, ABBREV_TABLE.get(model_name))
+    mapping = dict(zip(ab[ab["table"] == label]["abbrev"], ab[ab["table"] == label]["group"]))
+    t["group"] = t["muscle"].map(mapping)
+    return t
+
+
+def thesis_f_actual(model: ReducedModel, thesis_dir: str | Path, dataset: str, table: str | None = None) -> np.ndarray:
+    """f_a of a simulated data set, in model muscle order (both sides get the printed value)."""
+    t = thesis_result_table(thesis_dir, model.name, table)
+    t = t[(t["dataset"] == dataset) & (t["quantity"] == "f_a")]
+    if t.empty:
+        raise ValueError(f"no f_a for data set {dataset!r} of {model.name} in the thesis tables")
+    val = dict(zip(t["group"], t["value_numeric"]))
+    f = []
+    for name in model.muscle_names:
+        g = name[:-2] if (not model.planar and name.endswith(("-R", "-L"))) else name
+        if g not in val:
+            raise ValueError(f"thesis table has no f_a for group {g!r} (model {model.name})")
+        f.append(val[g])
+    return np.array(f, float)
+
+
+def emg_mask(model: ReducedModel, groups: Sequence[str]) -> np.ndarray:
+    """Muscles of ``model`` whose activation was recorded by surface EMG (group names, both sides)."""
+    keep = set(groups)
+    return np.array([(n[:-2] if n.endswith(("-R", "-L")) else n) in keep for n in model.muscle_names])
+
+
+def simulated_dataset(model: ReducedModel, directions: pd.DataFrame, name: str, f_actual: np.ndarray,
+                      emg_groups: Sequence[str] = (), emg_band: float = 0.05) -> Dataset:
+    """Simulated measurements ``{w_meas, alpha_meas} = M(f_a, u_i)`` (Sec. 5.3)."""
+    d, U = model_directions_table(model, directions)
+    w, alpha, status = solve_max_wrench(model, f_actual[None, :], U)
+    bad = [d["name"][k] for k in range(len(d)) if STATUS_CODES[int(status[0, k])] != "optimal"]
+    if bad:
+        raise ValueError(f"{model.name} with f_a cannot produce directions {bad}")
+    lb = ub = None
+    mask = emg_mask(model, emg_groups)
+    if mask.any():
+        lb = np.zeros((len(d), model.m))
+        ub = np.ones((len(d), model.m))
+        lb[:, mask] = np.clip(alpha[0][:, mask] - emg_band, 0.0, 1.0)
+        ub[:, mask] = np.clip(alpha[0][:, mask] + emg_band, 0.0, 1.0)
+    return Dataset(name, list(d["name"]), U, w[0], d["force_scale"].to_numpy(float), lb, ub, f_actual)
+
+
+def participant_dataset(model: ReducedModel, directions: pd.DataFrame, participant: str,
+                        measurements: str | Path, activations: str | Path | None = None,
+                        emg: str = "none", emg_groups: Sequence[str] = (), emg_band: float = 0.2) -> Dataset:
+    """Measured maximum forces of one participant (Table A.2 layout) as a data set.
+
+    ``emg``: 'none' (default) ignores Table A.3; 'a3_band' bounds every EMG-recorded group's activation to
+    [a - band, a + band] with ``a`` the participant's single activation value of that direction.
+    """
+    d, U = model_directions_table(model, directions)
+    meas = read_measurements(measurements, list(directions["name"]))
+    if participant not in meas.columns:
+        raise ValueError(f"{measurements}: no column for participant {participant!r}")
+    forces = meas[participant].reindex(d["name"]).to_numpy(float)
+    if np.isnan(forces).any():
+        missing = list(d["name"][np.isnan(forces)])
+        raise ValueError(f"{measurements}: participant {participant} has no force for directions {missing}")
+    scale = d["force_scale"].to_numpy(float)
+    lb = ub = None
+    if emg == "a3_band":
+        if activations is None:
+            raise ValueError("emg='a3_band' needs the activation table")
+        act = read_activations(activations, list(directions["name"]))[participant].reindex(d["name"]).to_numpy()
+        mask = emg_mask(model, emg_groups)
+        lb = np.zeros((len(d), model.m))
+        ub = np.ones((len(d), model.m))
+        lb[:, mask] = np.clip(act[:, None] - emg_band, 0, 1)
+        ub[:, mask] = np.clip(act[:, None] + emg_band, 0, 1)
+    elif emg != "none":
+        raise ValueError(f"unknown emg option {emg!r}")
+    return Dataset(participant, list(d["name"]), U, forces * scale, scale, lb, ub, None)
+
+
+def build_dataset(model: ReducedModel, directions: pd.DataFrame, dataset: str, cfg: Mapping,
+                  thesis_dir: str | Path, measurements: str | Path, activations: str | Path) -> Dataset:
+    """Data set ``dataset`` ('norm', 'weak', 'Sim' or a participant id) for ``model`` per config ``cfg``."""
+    groups = cfg.get("emg_groups", {}).get(model.name, [])
+    if dataset in ("norm", "weak"):
+        return simulated_dataset(model, directions, dataset, thesis_f_actual(model, thesis_dir, dataset),
+                                 groups if cfg.get("simulated_emg", True) else (), cfg.get("simulated_emg_band", 0.05))
+    return participant_dataset(model, directions, dataset, measurements, activations, cfg.get("participant_emg", "none"),
+                               groups, cfg.get("participant_emg_band", 0.2))

@@ -1,0 +1,109 @@
+# Chapter 5: ABC strength estimation (Algorithm 4), one rule instance per {model} x {dataset}.
+
+
+rule abc_estimate:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+        directions="results/geometry/directions.csv",
+        measurements=config["data"]["measurements"],
+    output:
+        estimate="results/chapter5/{model}/{dataset}/estimate.csv",
+        history="results/chapter5/{model}/{dataset}/history.csv",
+        scores="results/chapter5/{model}/{dataset}/scores.csv",
+        dk_hist="results/chapter5/{model}/{dataset}/dk_hist.csv",
+        d_by_direction="results/chapter5/{model}/{dataset}/d_by_direction.csv",
+        fit="results/chapter5/{model}/{dataset}/fit.csv",
+        candidates="results/chapter5/{model}/{dataset}/candidates.csv",
+        summary="results/chapter5/{model}/{dataset}/summary.json",
+    log:
+        "logs/chapter5/{model}/{dataset}/estimate.log",
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=120,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/abc_estimate.py"
+
+
+rule abc_figures:
+    input:
+        directions="results/geometry/directions.csv",
+        estimate="results/chapter5/{model}/{dataset}/estimate.csv",
+        history="results/chapter5/{model}/{dataset}/history.csv",
+        dk_hist="results/chapter5/{model}/{dataset}/dk_hist.csv",
+        d_by_direction="results/chapter5/{model}/{dataset}/d_by_direction.csv",
+        fit="results/chapter5/{model}/{dataset}/fit.csv",
+        candidates="results/chapter5/{model}/{dataset}/candidates.csv",
+    output:
+        traces=report(
+            "results/chapter5/{model}/{dataset}/fig_estimate_traces.png",
+            caption="../report/abc_traces.rst",
+            category="Chapter 5",
+            subcategory="{model}",
+            labels={"model": "{model}", "dataset": "{dataset}", "figure": "estimate traces"},
+        ),
+        dk_hist=report(
+            "results/chapter5/{model}/{dataset}/fig_dk_histograms.png",
+            caption="../report/abc_dk.rst",
+            category="Chapter 5",
+            subcategory="{model}",
+            labels={"model": "{model}", "dataset": "{dataset}", "figure": "D_k histograms"},
+        ),
+        d_dir=report(
+            "results/chapter5/{model}/{dataset}/fig_d_by_direction.png",
+            caption="../report/abc_d_dir.rst",
+            category="Chapter 5",
+            subcategory="{model}",
+            labels={"model": "{model}", "dataset": "{dataset}", "figure": "d by direction"},
+        ),
+        parallel=report(
+            "results/chapter5/{model}/{dataset}/fig_parallel_coordinates.png",
+            caption="../report/abc_parallel.rst",
+            category="Chapter 5",
+            subcategory="{model}",
+            labels={"model": "{model}", "dataset": "{dataset}", "figure": "parallel coordinates"},
+        ),
+        radar=report(
+            "results/chapter5/{model}/{dataset}/fig_radar_fit.png",
+            caption="../report/abc_radar.rst",
+            category="Chapter 5",
+            subcategory="{model}",
+            labels={"model": "{model}", "dataset": "{dataset}", "figure": "radar fit"},
+        ),
+    log:
+        "logs/chapter5/{model}/{dataset}/figures.log",
+    threads: 1
+    resources:
+        mem_mb=1500,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/abc_figures.py"
+
+
+rule abc_table:
+    input:
+        estimates=chapter5_estimates,
+        summaries=chapter5_summaries,
+    output:
+        report(
+            "results/chapter5/{named}/table_vs_thesis.csv",
+            caption="../report/abc_table.rst",
+            category="Chapter 5",
+            subcategory="{named}",
+            labels={"model": "{named}", "table": "Table 5.x vs thesis"},
+        ),
+    params:
+        datasets=chapter5_dataset_list,
+    log:
+        "logs/chapter5/{named}/table.log",
+    threads: 1
+    resources:
+        mem_mb=500,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/abc_table.py"
