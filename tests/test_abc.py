@@ -88,3 +88,21 @@ def test_weak_deep_extensors_identified_p2m7(env):
     r = estimate_strengths(m, data, ABCSettings(sigma0=0.3, max_iter=30), f0, a, progress=None)
     k = r.param_names.index("TC-E")
     assert abs(r.f_c[k] - 69) / 69 < 0.3 and r.sigma_c[k] < 0.05
+
+
+def test_abc_smc_improves_fit_and_respects_budget(env):
+    from neckstrength.abc_smc import SMCSettings, abc_smc
+
+    cfg, full, d = env
+    m = model_from_config(full, cfg, "p2m7")
+    data = build_dataset(m, d, "norm", {"simulated_emg": False}, THESIS, cfg["data"]["measurements"],
+                         cfg["data"]["activations"])
+    f0, _ = bootstrap_prior(m, data, "back")
+    r = abc_smc(m, data, f0, SMCSettings(n_particles=300, budget=6000), np.random.default_rng(3))
+    assert r.n_simulations <= 6000
+    assert np.isclose(r.weights.sum(), 1.0) and (r.weights >= 0).all()
+    g = r.generations
+    assert len(g) >= 3 and g["median_distance"].iloc[-1] < g["median_distance"].iloc[0]
+    # the deep extensors (TC-E) are well identified by the free sampler too
+    k = list(m.muscle_names).index("TC-E")
+    assert abs(r.mean()[k] - 275) / 275 < 0.15

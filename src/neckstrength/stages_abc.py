@@ -14,6 +14,9 @@ from .abc import ABCSettings, bootstrap_prior, estimate_strengths
 from .datasets import build_dataset, thesis_result_table
 from .stages import atomic_write_csv, atomic_write_text, full_model_from_config, load_directions, model_from_config
 
+#: groups holding the deep cervical extensors in each named model (s3m24, p3m12, p2m7)
+DEEP_EXTENSOR_GROUPS = ("mf", "multif", "TC-E")
+
 OUTPUTS = ("estimate", "history", "scores", "dk_hist", "d_by_direction", "fit", "candidates")
 
 
@@ -123,3 +126,100 @@ def stage_abc_table(config: Mapping, model_name: str, datasets: Sequence[str], e
                                    "participants: our test-point geometry is a reconstruction, so forces and "
                                    "estimates are not expected to match digit for digit"], float_format="%.4g")
     return df
+
+
+# --------------------------------------------------------------------------- beyond the thesis
+
+def stage_abc_smc(config: Mapping, model_name: str, dataset: str, directions_csv, estimate_csv, summary_json,
+                  out_csv, out_generations) -> pd.DataFrame:
+    """ABC-SMC with every muscle free vs Algorithm 4 at equal simulation budget."""
+    from .abc import free_parameters
+    from .abc_smc import SMCSettings, abc_smc
+
+    c = config["chapter5"]
+    sc = c["smc"]
+    full = full_model_from_config(config)
+    model = model_from_config(full, config, model_name)
+    d = load_directions(directions_csv)
+    data = build_dataset(model, d, dataset, c, config["data"]["thesis_dir"], config["data"]["measurements"],
+                         config["data"]["activations"])
+    meta = json.loads(Path(summary_json).read_text())
+    settings = abc_settings(config, model_name)
+    _, pnames = free_parameters(model, settings.tie_sides)
+    alg4_budget = int(meta["iterations"]) * 3 ** len(pnames)
+    budget = int(min(alg4_budget, sc["max_budget"]))
+    f0, _ = bootstrap_prior(model, data, c["bootstrap_direction"])
+    rng = np.random.default_rng([config["seed"], zlib.crc32(f"smc/{model_name}/{dataset}".encode())])
+    print(f"Algorithm 4 used {alg4_budget} candidate evaluations ({meta['iterations']} iterations x 3^{len(pnames)}); "
+          f"ABC-SMC budget {budget} (cap {sc['max_budget']})")
+    res = abc_smc(model, data, f0, SMCSettings(n_particles=sc["n_particles"], budget=budget,
+                                               prior_sigma=sc["prior_sigma"], quantile=sc["quantile"],
+                                               epsilon=c["epsilon"]), rng, progress=lambda s: print(s, flush=True))
+    est = pd.read_csv(estimate_csv, comment="#").set_index("muscle")
+    q = res.quantiles((0.05, 0.5, 0.95))
+    mean = res.mean()
+    rows = []
+    for j, mname in enumerate(model.muscle_names):
+        truth = data.f_true[j] if data.f_true is not None else np.nan
+        a4 = float(est.loc[mname, "f_c"])
+        rows.append({"muscle": mname, "truth": truth, "alg4_f_c": a4, "alg4_sigma_c": float(est.loc[mname, "sigma_c"]),
+                     "smc_mean": mean[j], "smc_q05": q[0, j], "smc_median": q[1, j], "smc_q95": q[2, j],
+                     "alg4_rel_error": (a4 - truth) / truth, "smc_rel_error": (mean[j] - truth) / truth,
+                     "smc_covers_truth": bool(q[0, j] <= truth <= q[2, j]) if np.isfinite(truth) else None})
+    df = pd.DataFrame(rows)
+    deep = [i for i, n in enumerate(model.muscle_names)
+            if n in DEEP_EXTENSOR_GROUPS or n.rsplit("-", 1)[0] in DEEP_EXTENSOR_GROUPS]
+    from .datasets import thesis_f_actual
+    ref = thesis_f_actual(model, config["data"]["thesis_dir"], "norm")
+    hdr = [f"ABC-SMC (all {model.m} muscles free) vs Algorithm 4 ({'tied sides' if settings.tie_sides else 'free'}), "
+           f"{model_name}/{dataset}; budget {res.n_simulations} vs {alg4_budget} candidate evaluations",
+           "deep extensors estimated weak (< 50% of the healthy 'norm' f_a): "
+           + "; ".join(f"{model.muscle_names[i]}: alg4 {bool(est.loc[model.muscle_names[i], 'f_c'] < 0.5 * ref[i])}, "
+                       f"smc {bool(mean[i] < 0.5 * ref[i])}" for i in deep),
+           f"mean |relative error| alg4 {np.nanmean(np.abs(df['alg4_rel_error'])):.3f}, "
+           f"smc {np.nanmean(np.abs(df['smc_rel_error'])):.3f}; seed {config['seed']}"]
+    for h in hdr:
+        print(h)
+    atomic_write_csv(df, out_csv, hdr, float_format="%.5g")
+    atomic_write_csv(res.generations, out_generations, hdr[:1], float_format="%.5g")
+    return df
+
+
+def stage_abc_coverage(config: Mapping, model_name: str, directions_csv, out_csv, out_summary) -> pd.DataFrame:
+    """Coverage of the true strengths by f_c (1 +- sigma_c) over noisy simulated data sets (Sec. 7.1.3)."""
+    from .abc_smc import coverage_check
+    from .datasets import simulated_dataset, thesis_f_actual
+
+    c = config["chapter5"]
+    cc = c["coverage"]
+    full = full_model_from_config(config)
+    model = model_from_config(full, config, model_name)
+    d = load_directions(directions_csv)
+    f_a = thesis_f_actual(model, config["data"]["thesis_dir"], "norm")
+    groups = c.get("emg_groups", {}).get(model_name, []) if c.get("simulated_emg", True) else []
+    base = simulated_dataset(model, d, "norm", f_a, groups, c.get("simulated_emg_band", 0.05))
+
+    def make_data(factors):
+        if factors is None:
+            return base
+        from .abc import Dataset
+        return Dataset(base.name, base.directions, base.U, base.w_meas * factors, base.force_scale,
+                       base.alpha_lb, base.alpha_ub, base.f_true)
+
+    def f0_fn(data):
+        return bootstrap_prior(model, data, c["bootstrap_direction"])[0]
+
+    rng = np.random.default_rng([config["seed"], zlib.crc32(f"coverage/{model_name}".encode())])
+    df = coverage_check(model, make_data, f_a, abc_settings(config, model_name), f0_fn, cc["replicates"],
+                        cc["noise"], rng)
+    summ = df.groupby("parameter", sort=False).agg(coverage=("covered", "mean"), mean_f_c=("f_c", "mean"),
+                                                   truth=("truth", "first"), mean_sigma=("sigma_c", "mean"),
+                                                   mean_D_fc=("D_fc", "mean")).reset_index()
+    hdr = [f"Posterior check (Sec. 7.1.3): {cc['replicates']} simulated 'norm' data sets of {model_name} with "
+           f"log-normal measurement noise sd {cc['noise']}; covered = truth within f_c (1 +- sigma_c)",
+           f"overall coverage {df['covered'].mean():.3f}; seed {config['seed']}"]
+    print("\n".join(hdr))
+    print(summ.to_string(index=False))
+    atomic_write_csv(df, out_csv, hdr, float_format="%.5g")
+    atomic_write_csv(summ, out_summary, hdr, float_format="%.4g")
+    return summ

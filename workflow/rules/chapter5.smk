@@ -107,3 +107,56 @@ rule abc_table:
         "../envs/neckstrength.yaml"
     script:
         "../scripts/abc_table.py"
+
+
+rule abc_smc:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+        directions="results/geometry/directions.csv",
+        estimate="results/chapter5/{model}/{dataset}/estimate.csv",
+        summary="results/chapter5/{model}/{dataset}/summary.json",
+    output:
+        table=report(
+            "results/chapter5/{model}/{dataset}/smc_vs_alg4.csv",
+            caption="../report/abc_smc.rst",
+            category="Chapter 5",
+            subcategory="beyond the thesis",
+            labels={"model": "{model}", "dataset": "{dataset}", "table": "ABC-SMC vs Algorithm 4"},
+        ),
+        generations="results/chapter5/{model}/{dataset}/smc_generations.csv",
+    log:
+        "logs/chapter5/{model}/{dataset}/smc.log",
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=120,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/abc_smc.py"
+
+
+rule abc_coverage:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+        directions="results/geometry/directions.csv",
+    output:
+        replicates="results/chapter5/{named}/coverage_replicates.csv",
+        summary=report(
+            "results/chapter5/{named}/coverage.csv",
+            caption="../report/abc_coverage.rst",
+            category="Chapter 5",
+            subcategory="beyond the thesis",
+            labels={"model": "{named}", "table": "posterior coverage"},
+        ),
+    log:
+        "logs/chapter5/{named}/coverage.log",
+    threads: 1
+    resources:
+        mem_mb=2000,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/abc_coverage.py"

@@ -122,6 +122,15 @@ def chapter5_outputs():
         named=CH5_MODELS,
         dataset=CH5_DATASETS,
     )
+    out += expand(
+        "results/chapter5/{named}/{dataset}/smc_vs_alg4.csv",
+        named=CH5_MODELS,
+        dataset=[d for d in config["chapter5"]["smc"]["datasets"] if d in CH5_DATASETS],
+    )
+    out += expand(
+        "results/chapter5/{named}/coverage.csv",
+        named=config["chapter5"]["coverage"]["models"],
+    )
     return out
 
 

@@ -1,0 +1,10 @@
+# Thin rule script: reads snakemake.input/output/config and calls one package function.
+import sys
+
+from neckstrength.stages_abc import stage_abc_smc
+
+with open(snakemake.log[0], "w") as log:
+    sys.stderr = sys.stdout = log
+    i, o = snakemake.input, snakemake.output
+    stage_abc_smc(snakemake.config, snakemake.wildcards.model, snakemake.wildcards.dataset, i.directions,
+                  i.estimate, i.summary, o.table, o.generations)
