@@ -172,9 +172,12 @@ class ABCResult:
     settings: dict = field(default_factory=dict)
 
 
+_THREADS = {"n": 1}
+
+
 def _simulate(model, F, data, chunk, return_alpha, cache=None):
     return solve_max_wrench(model, F, data.U, data.alpha_lb, data.alpha_ub, return_alpha=return_alpha,
-                            chunk_size=chunk, cache=cache)
+                            chunk_size=chunk, cache=cache, n_threads=_THREADS["n"])
 
 
 def _settings_key(model: ReducedModel, data: Dataset, s: ABCSettings, f0: np.ndarray) -> str:
@@ -190,7 +193,7 @@ def _settings_key(model: ReducedModel, data: Dataset, s: ABCSettings, f0: np.nda
 def estimate_strengths(model: ReducedModel, data: Dataset, settings: ABCSettings, f0: np.ndarray,
                        scale_a: float = float("nan"), rng: np.random.Generator | None = None,
                        checkpoint: str | Path | None = None, progress: Callable[[str], None] | None = print,
-                       chunk: int = 65536) -> ABCResult:
+                       chunk: int = 65536, n_threads: int = 1) -> ABCResult:
     """Run Algorithm 4 from the prior point estimate ``f0`` (model muscles).
 
     ``rng`` only subsamples the candidates stored for plotting (the algorithm itself is deterministic).
@@ -204,6 +207,7 @@ def estimate_strengths(model: ReducedModel, data: Dataset, settings: ABCSettings
 
     rng = rng or np.random.default_rng(0)
     s = settings
+    _THREADS["n"] = max(1, int(n_threads))  # directions solved in parallel threads (same results)
     cache = BasisCache()  # optimal bases stay valid across iterations: nearby candidates reuse them
     pidx, pnames = free_parameters(model, s.tie_sides)
     mp = len(pnames)

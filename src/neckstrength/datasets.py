@@ -123,6 +123,6 @@ def build_dataset(model: ReducedModel, directions: pd.DataFrame, dataset: str, c
     groups = cfg.get("emg_groups", {}).get(model.name, [])
     if dataset in ("norm", "weak"):
         return simulated_dataset(model, directions, dataset, thesis_f_actual(model, thesis_dir, dataset),
-                                 groups if cfg.get("simulated_emg", True) else (), cfg.get("simulated_emg_band", 0.05))
+                                 groups if cfg.get("simulated_emg", False) else (), cfg.get("simulated_emg_band", 0.05))
     return participant_dataset(model, directions, dataset, measurements, activations, cfg.get("participant_emg", "none"),
                                groups, cfg.get("participant_emg_band", 0.2))

@@ -173,7 +173,8 @@ def bootstrap_scale(model: ReducedModel, f_base: np.ndarray, u: np.ndarray, w_me
 
 
 def solve_max_wrench(model: ReducedModel, F: np.ndarray, U: np.ndarray, alpha_lb=None, alpha_ub=None,
-                     method: str = "auto", return_alpha: bool = True, chunk_size: int = 65536, cache=None):
+                     method: str = "auto", return_alpha: bool = True, chunk_size: int = 65536, cache=None,
+                     n_threads: int = 1):
     """Entry point used by every pipeline stage; same return convention as :func:`max_wrench_batch`.
 
     ``method``: 'batched' (:mod:`neckstrength.batched`, exact, cached optimal bases), 'highs' (one HiGHS
@@ -191,7 +192,7 @@ def solve_max_wrench(model: ReducedModel, F: np.ndarray, U: np.ndarray, alpha_lb
         from .batched import max_wrench_batched
 
         return max_wrench_batched(model, F, U, alpha_lb, alpha_ub, chunk_size=chunk_size, cache=cache,
-                                  return_alpha=return_alpha)
+                                  return_alpha=return_alpha, n_threads=n_threads)
     if method != "highs":
         raise ValueError(f"unknown method {method!r}")
     w, alpha, status = max_wrench_batch(model, F, U, alpha_lb, alpha_ub)

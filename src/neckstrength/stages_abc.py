@@ -29,7 +29,7 @@ def abc_settings(config: Mapping, model_name: str) -> ABCSettings:
 
 
 def stage_abc_estimate(config: Mapping, model_name: str, dataset: str, directions_csv: str | Path,
-                       outputs: Mapping[str, str | Path]) -> None:
+                       outputs: Mapping[str, str | Path], threads: int = 1) -> None:
     full = full_model_from_config(config)
     model = model_from_config(full, config, model_name)
     c = config["chapter5"]
@@ -44,7 +44,7 @@ def stage_abc_estimate(config: Mapping, model_name: str, dataset: str, direction
     print(f"model {model_name}, data set {dataset}: {model.m} muscles, {len(data.directions)} directions; "
           f"Eq. 5.3 scale a = {a:.4f} in '{c['bootstrap_direction']}'; settings {settings}")
     res = estimate_strengths(model, data, settings, f0, a, rng=rng, checkpoint=ckpt,
-                             progress=lambda s: print(s, flush=True))
+                             progress=lambda s: print(s, flush=True), n_threads=threads)
     pidx = {p: i for i, p in enumerate(res.param_names)}
     rows = []
     for j, mname in enumerate(model.muscle_names):
@@ -196,7 +196,7 @@ def stage_abc_coverage(config: Mapping, model_name: str, directions_csv, out_csv
     model = model_from_config(full, config, model_name)
     d = load_directions(directions_csv)
     f_a = thesis_f_actual(model, config["data"]["thesis_dir"], "norm")
-    groups = c.get("emg_groups", {}).get(model_name, []) if c.get("simulated_emg", True) else []
+    groups = c.get("emg_groups", {}).get(model_name, []) if c.get("simulated_emg", False) else []
     base = simulated_dataset(model, d, "norm", f_a, groups, c.get("simulated_emg_band", 0.05))
 
     def make_data(factors):

@@ -18,7 +18,7 @@ rule abc_estimate:
         summary="results/chapter5/{model}/{dataset}/summary.json",
     log:
         "logs/chapter5/{model}/{dataset}/estimate.log",
-    threads: 1
+    threads: 2
     resources:
         mem_mb=4000,
         runtime=120,

@@ -6,4 +6,4 @@ from neckstrength.stages_abc import stage_abc_estimate
 with open(snakemake.log[0], "w") as log:
     sys.stderr = sys.stdout = log
     stage_abc_estimate(snakemake.config, snakemake.wildcards.model, snakemake.wildcards.dataset,
-                       snakemake.input.directions, dict(snakemake.output.items()))
+                       snakemake.input.directions, dict(snakemake.output.items()), snakemake.threads)
