@@ -17,6 +17,10 @@ include: "workflow/rules/appendix_a.smk"
 include: "workflow/rules/chapter3.smk"
 include: "workflow/rules/chapter4.smk"
 include: "workflow/rules/chapter5.smk"
+include: "workflow/rules/chapter6.smk"
+include: "workflow/rules/gap.smk"
+# keep report.smk the last include: its inputs enumerate the outputs of every chapter above
+include: "workflow/rules/report.smk"
 
 
 rule all:

@@ -4,7 +4,6 @@ The reduced run happens in a temporary copy of the repository so that it never
 touches a user's results/.
 """
 
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -21,15 +20,9 @@ def run(cmd, cwd, timeout=900):
 
 
 @pytest.fixture(scope="module")
-def workdir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("wf")
-    for item in ("Snakefile", "workflow", "config", "data"):
-        src = ROOT / item
-        if src.is_dir():
-            shutil.copytree(src, d / item)
-        else:
-            shutil.copy(src, d / item)
-    return d
+def workdir(repo_copy):
+    # the session-wide copy (tests/conftest.py), shared with tests/test_report.py
+    return repo_copy
 
 
 def test_lint_clean(workdir):
@@ -40,7 +33,7 @@ def test_lint_clean(workdir):
 
 def test_slurm_profile_dry_run(workdir):
     pytest.importorskip("snakemake_executor_plugin_slurm")
-    r = run(SNAKEMAKE + ["-n", "--workflow-profile", "workflow/profiles/slurm",
+    r = run(SNAKEMAKE + ["-n", "--forceall", "--workflow-profile", "workflow/profiles/slurm",
                          "--configfile", "config/config.ci.yaml"], workdir)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "appendix_a4" in r.stdout + r.stderr
@@ -54,8 +47,8 @@ def test_full_config_dry_run_lists_all_models(workdir):
     assert "reduce_model" in out
 
 
-def test_reduced_pipeline_end_to_end(workdir):
-    r = run(SNAKEMAKE + ["-c2", "--configfile", "config/config.ci.yaml"], workdir)
+def test_reduced_pipeline_end_to_end(workdir, ci_pipeline):
+    r = ci_pipeline  # snakemake -c2 --configfile config/config.ci.yaml, run once per session (conftest.py)
     assert r.returncode == 0, r.stdout + r.stderr
     res = workdir / "results"
     for f in ("model/full_model.csv", "model/momentarm_vs_B1.csv", "geometry/directions.csv",
@@ -80,7 +73,7 @@ def test_reduced_pipeline_end_to_end(workdir):
     assert "Nothing to be done" in r2.stdout + r2.stderr
 
 
-def test_bad_measurement_file_stops_before_writing(workdir, tmp_path):
+def test_bad_measurement_file_stops_before_writing(workdir, tmp_path, ci_pipeline):
     bad = workdir / "data" / "bad_A2.csv"
     bad.write_text("direction,S003,S005\nforehead,102.7,x\n")
     (workdir / "config" / "bad.yaml").write_text(

@@ -11,3 +11,17 @@ Modules (import downward only):
 """
 
 __version__ = "0.1.0"
+
+
+def _job_record() -> None:
+    # Inside a Snakemake rule script only: append run time / peak memory to the job's log at exit, read by the
+    # report's run-time table (neckstrength.runinfo). Does nothing anywhere else.
+    import sys
+
+    if getattr(sys.modules.get("__main__"), "snakemake", None) is not None:
+        from .runinfo import install_job_record
+
+        install_job_record()
+
+
+_job_record()

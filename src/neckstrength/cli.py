@@ -5,6 +5,8 @@ Verbs:
   directions     write the test-direction table for a config
   max-wrench     maximum wrench of a model in every test direction (baseline or given strengths)
   validate       check a measurement / activation / test-point file and report the first problem
+  session        clinician-in-the-loop session: start, resume, replay (docs/session.md)
+  diagnose       sim-to-real gap diagnosis of a data set: where, which effect, how far (docs/gap_diagnosis.md)
 """
 
 from __future__ import annotations
@@ -92,6 +94,48 @@ def _cmd_derive(args) -> int:
     return derive_opensim.main(argv) or 0
 
 
+def _cmd_session(args) -> int:
+    from .session import InputError, Session, SessionOptions, parse_priorities, replay_csv, run_interactive
+
+    try:
+        if args.action == "resume":
+            s = Session.resume(args.out)
+            return run_interactive(s)
+        opts = SessionOptions(model=args.model, participant=args.participant,
+                              priorities=parse_priorities(args.priority), config=args.config,
+                              n_candidates=args.n_candidates, prior_scale=args.prior_scale,
+                              gain_frac=args.stop_frac, cache=args.cache, seed=args.seed)
+        s = Session.start(args.out, opts)
+        return run_interactive(s) if args.action == "start" else replay_csv(s, args.csv)
+    except (InputError, ValueError, FileExistsError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _cmd_diagnose(args) -> int:
+    from .stages import build_directions
+    from .stages_gap import DATASET_FILES, FIGURES, stage_gap_diagnose
+
+    cfg = load_config(args.config)
+    if args.measurements:
+        cfg["gap"]["measurements"] = args.measurements
+    if args.effects:
+        cfg["gap"]["effects"] = [e.strip() for e in args.effects.split(",") if e.strip()]
+    model = args.model or cfg["gap"]["models"][0]
+    out = Path(args.out or f"results/gap/{model}/{args.dataset}")
+    outputs = {k: out / f"{k}.csv" for k in DATASET_FILES}
+    outputs.update({f"fig_{k}": out / f"fig_{k}.png" for k in FIGURES})
+    outputs.update({"summary": out / "summary.json", "report": out / "report.md"})
+    try:
+        s = stage_gap_diagnose(cfg, model, args.dataset, build_directions(cfg), outputs)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {out}/report.md: where {s['worst_plane']} / {s['worst_component']}; which {s['chosen']}; "
+          f"held-out gap {s['gap_before']:.3f} -> {s['gap_after']:.3f}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="neckstrength", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -119,6 +163,41 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("kind", choices=["measurements", "activations", "points"])
     d.add_argument("file")
     d.set_defaults(func=_cmd_validate)
+
+    d = sub.add_parser("session", help="clinician-in-the-loop session (propose, measure, update, stop)")
+    ss = d.add_subparsers(dest="action", required=True)
+    for action in ("start", "replay"):
+        a = ss.add_parser(action, help="start an interactive session" if action == "start" else
+                          "run a session from a CSV of measurements (direction,force_N[,activations])")
+        if action == "replay":
+            a.add_argument("--csv", required=True)
+        a.add_argument("--out", required=True, help="session folder (log, summary)")
+        a.add_argument("--model", default="p2m7", choices=["p2m7", "p3m12", "s3m24"])
+        a.add_argument("--participant", default="anonymous")
+        a.add_argument("--priority", action="append", metavar="MUSCLE=WEIGHT",
+                       help="Eq. 6.8 muscle priority (repeatable; unlisted muscles weigh 0)")
+        a.add_argument("--config", default="config/config.yaml")
+        a.add_argument("--n-candidates", type=int, default=None, help="N_F (default: config chapter6)")
+        a.add_argument("--prior-scale", type=float, default=1.0, help="a in the prior f_0 = a f'_base")
+        a.add_argument("--stop-frac", type=float, default=None,
+                       help="stop when the best expected reduction < this share of the first step's "
+                            "(default: config chapter6.stop.gain_frac)")
+        a.add_argument("--cache", default=None, help="candidate-set cache folder (default results/session_cache)")
+        a.add_argument("--seed", type=int, default=None, help="default: config seed")
+    a = ss.add_parser("resume", help="resume a session from its log")
+    a.add_argument("--out", required=True)
+    d.set_defaults(func=_cmd_session)
+
+    d = sub.add_parser("diagnose", help="sim-to-real gap diagnosis of one data set (forces only)")
+    d.add_argument("--config", default="config/config.yaml")
+    d.add_argument("--model", default=None, help="p2m7, p3m12, s3m24 or <kinematic>-<grouping> (default: "
+                                                 "first of config gap.models)")
+    d.add_argument("--dataset", required=True, help="participant column of the measurement table, or norm/weak")
+    d.add_argument("--measurements", default=None, help="a measurement table in the Table A.2 layout "
+                                                        "(default: config gap.measurements / data.measurements)")
+    d.add_argument("--effects", default=None, help="comma-separated effects (default: config gap.effects)")
+    d.add_argument("--out", default=None, help="output folder (default results/gap/<model>/<dataset>)")
+    d.set_defaults(func=_cmd_diagnose)
     return p
 
 

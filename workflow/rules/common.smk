@@ -134,6 +134,98 @@ def chapter5_outputs():
     return out
 
 
+REPORT_OUTPUTS = [
+    "results/report/scorecard.csv",
+    "results/report/scorecard_summary.csv",
+    "results/report/scorecard_tolerances.csv",
+    "results/report/environment.csv",
+    "results/report/runtime.csv",
+    "results/report/runtime_by_rule.csv",
+]
+
+
+def report_outputs():
+    # outputs of workflow/rules/report.smk (included last in the Snakefile)
+    return list(REPORT_OUTPUTS)
+
+
+def scorecard_inputs():
+    # the thesis comparison tables among the final outputs of every chapter, as selected by the registry
+    # neckstrength.scorecard.SOURCES (plus the sibling files its loaders read)
+    from neckstrength.scorecard import scorecard_inputs as select
+
+    return select([f for f in final_outputs() if f not in REPORT_OUTPUTS])
+
+
+def runtime_inputs():
+    # every other final output: the run-time table is written after all other jobs have finished
+    return [f for f in final_outputs() if not f.startswith("results/report/runtime")]
+
+
+def report_software_versions():
+    # a param of the environment rule, so that a changed package version re-runs it
+    from neckstrength.runinfo import software_versions
+
+    return software_versions()
+
+
+CH6_MODELS = list(config["chapter6"]["models"])
+
+
+def chapter6_datasets_for(named):
+    return list(config["chapter6"]["model_datasets"].get(named, config["chapter6"]["datasets"]))
+
+
+def chapter6_dataset_list(wildcards):
+    return chapter6_datasets_for(wildcards.named)
+
+
+def chapter6_estimates(wildcards):
+    return [f"results/chapter6/{wildcards.named}/{d}/estimate.csv" for d in chapter6_datasets_for(wildcards.named)]
+
+
+def chapter6_summaries(wildcards):
+    return [f"results/chapter6/{wildcards.named}/{d}/summary.json" for d in chapter6_datasets_for(wildcards.named)]
+
+
+def chapter6_outputs():
+    out = []
+    for named in CH6_MODELS:
+        out.append(f"results/chapter6/{named}/table_6_1_vs_thesis.csv")
+        for d in chapter6_datasets_for(named):
+            out.append(f"results/chapter6/{named}/{d}/fig_6_4a_posteriors.png")
+    if config["chapter6"]["order_comparison"]["n_participants"] > 0:
+        out.append("results/chapter6/order_comparison/orders_vs_random.csv")
+    return out
+
+
+GAP_MODELS = list(config["gap"]["models"])
+GAP_DATASETS = list(config["gap"]["datasets"])
+
+
+def gap_measurements():
+    return config["gap"].get("measurements") or config["data"]["measurements"]
+
+
+def gap_dataset_list(wildcards):
+    return GAP_DATASETS
+
+
+def gap_summaries(wildcards):
+    return [f"results/gap/{wildcards.model}/{d}/summary.json" for d in GAP_DATASETS]
+
+
+def gap_effect_tables(wildcards):
+    return [f"results/gap/{wildcards.model}/{d}/effects.csv" for d in GAP_DATASETS]
+
+
+def gap_outputs():
+    out = expand("results/gap/{model}/pooled.csv", model=GAP_MODELS)
+    out += expand("results/gap/{model}/{dataset}/report.md", model=GAP_MODELS, dataset=GAP_DATASETS)
+    out.append(f"results/gap/{config['gap']['benchmark']['model']}/benchmark/confusion.csv")
+    return out
+
+
 def final_outputs():
     out = [
         "results/model/full_model.csv",
@@ -147,5 +239,8 @@ def final_outputs():
     out += expand("results/strength/{model}/baseline.csv", model=ALL_MODELS)
     out += chapter4_outputs()
     out += chapter5_outputs()
+    out += gap_outputs()
+    out += chapter6_outputs()
     out += chapter3_outputs()
+    out += report_outputs()
     return out

@@ -1,0 +1,18 @@
+"""Sim-to-real gap diagnosis (issue 8): where the model misses the measured forces, which unmodelled
+effect explains it, and how far the gap shrinks when that effect is added.
+
+Modules, each importing downward only:
+
+- :mod:`.effects`    candidate unmodelled effects (a registry: one class per effect) and the model
+                     :class:`~.effects.Instance` they modify (moment arms, strengths, bounds, directions)
+- :mod:`.fit`        free strengths (+ fixed effect parameters) fitted to measured forces: a Levenberg-Marquardt
+                     least-squares fit vectorised over many problems; every evaluation is one batch of exact LPs
+- :mod:`.diagnose`   where (residuals by direction, plane, wrench component, active muscle; reach envelope),
+                     which (cross-validation over held-out directions, penalty, bootstrap ranking) and how far
+- :mod:`.benchmark`  withheld-effect generator and blind scoring (kept apart from the diagnosis)
+- :mod:`.report`     per-data-set markdown report and figures
+"""
+
+from .effects import EFFECTS, Effect, GapContext, Instance, Param, available_effects, base_instance, compose
+
+__all__ = ["EFFECTS", "Effect", "GapContext", "Instance", "Param", "available_effects", "base_instance", "compose"]

@@ -1,0 +1,176 @@
+"""Withheld-effect benchmark: data sets from a richer truth model, diagnosed blind, scored afterwards.
+
+The generator (:func:`generate_cases`) draws, per case, individual strengths around the baseline and
+injects zero, one or two registered effects with parameters of clear size (a share ``clear_size`` of the
+way from neutral to the far end of each parameter's range), simulates the maximum forces with the
+extended model and multiplies them by log-normal measurement noise. The cases keep their labels; the
+diagnosis (:func:`neckstrength.gap.diagnose.diagnose`) receives only :class:`BlindData` - an anonymous
+name and the noisy forces, in shuffled order - and never imports this module. Only then
+:func:`score_benchmark` compares: confusion matrix of injected vs identified effect, error of the
+estimated effect size, and the held-out gap shrinkage achieved vs possible (the gap left when predicting
+the noiseless forces exactly, i.e. the noise floor).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..abc import data_discrepancy
+from .diagnose import BlindData, DatasetDiagnosis, DiagnosisSettings, diagnose
+from .effects import EFFECTS, GapContext, available_effects, compose, effect_label, parse_label
+from .fit import Simulator, make_cache
+
+__all__ = ["BenchmarkSettings", "Case", "generate_cases", "blind", "score_benchmark", "run_benchmark"]
+
+
+@dataclass(frozen=True)
+class BenchmarkSettings:
+    effects: tuple[str, ...] = ("cocontraction", "direction_tolerance", "kinematic", "origin_offset")
+    pairs: tuple[tuple[str, str], ...] = ()
+    replicates: int = 2
+    controls: int = 2
+    noise_rel: float = 0.05
+    strength_spread: float = 0.3
+    clear_size: tuple[float, float] = (0.6, 1.0)
+    min_force_ratio: float = 0.2
+    max_tries: int = 200
+
+
+@dataclass
+class Case:
+    """One generated data set, with its label (generator side only)."""
+
+    name: str
+    injected: tuple[str, ...]
+    theta: dict
+    f_true: np.ndarray
+    forces_clean: np.ndarray
+    forces: np.ndarray
+
+    @property
+    def label(self) -> str:
+        return effect_label(self.injected)
+
+
+def _draw_theta(effect, u: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    th = []
+    for p, ui in zip(effect.params(), u):
+        up, down = p.hi - p.neutral, p.neutral - p.lo
+        if up > 1e-12 and down > 1e-12:
+            far = p.hi if rng.random() < 0.5 else p.lo
+        else:
+            far = p.hi if up >= down else p.lo
+        th.append(p.neutral + ui * (far - p.neutral))
+    return np.array(th)
+
+
+def generate_cases(ctx: GapContext, s: BenchmarkSettings, rng: np.random.Generator) -> list[Case]:
+    """Cases: ``controls`` without effect, ``replicates`` per injected effect and per injected pair.
+
+    A draw (strengths and effect size) is kept only if every direction's force is at least
+    ``min_force_ratio`` x the median force of the same strengths without the effect (Table A.2: the weakest
+    direction of a participant is 0.2-0.6 of the median), so that no case has directions a participant could
+    hardly have produced at all."""
+    effects = {e.name: e for e in available_effects(ctx, list(dict.fromkeys(
+        list(s.effects) + [n for pr in s.pairs for n in pr])))}
+    missing = [n for n in list(s.effects) + [n for pr in s.pairs for n in pr] if n not in effects]
+    if missing:
+        raise ValueError(f"benchmark effects not applicable to model {ctx.model.name}: {missing}")
+    plan: list[tuple[str, ...]] = [()] * s.controls
+    for n in s.effects:
+        plan += [(n,)] * s.replicates
+    for pr in s.pairs:
+        plan += [tuple(pr)] * s.replicates
+    cache = make_cache()
+    base_sim = Simulator(ctx, compose(ctx, [], []), cache)
+    pidx = base_sim.pidx
+    p = int(pidx.max()) + 1
+    cases = []
+    for names in plan:
+        for _ in range(s.max_tries):
+            f = ctx.model.strengths * np.exp(rng.normal(0.0, s.strength_spread, p))[pidx]
+            theta = {n: _draw_theta(effects[n], rng.uniform(*s.clear_size, effects[n].n_params), rng) for n in names}
+            inst = compose(ctx, [effects[n] for n in names], [theta[n] for n in names])
+            clean = Simulator(ctx, inst, cache).forces(f[None])[0]
+            typical = np.median(base_sim.forces(f[None])[0])
+            if clean.min() >= s.min_force_ratio * typical:
+                break
+        else:
+            raise RuntimeError(f"could not draw a producible case for {names}")
+        noisy = clean * np.exp(rng.normal(0.0, s.noise_rel, len(clean)))
+        cases.append(Case("", tuple(names), theta, f, clean, noisy))
+    order = rng.permutation(len(cases))
+    cases = [cases[k] for k in order]
+    for k, c in enumerate(cases):
+        c.name = f"case{k + 1:02d}"
+    return cases
+
+
+def blind(cases: Sequence[Case]) -> list[BlindData]:
+    """What the diagnosis may see: anonymous names and noisy forces."""
+    return [BlindData(c.name, c.forces.copy()) for c in cases]
+
+
+def _theta_from(diag: DatasetDiagnosis, effect: str):
+    row = diag.effects[diag.effects["candidate"] == effect]
+    if row.empty:
+        return None
+    vals = json.loads(row["theta_values"].iloc[0])
+    return None if effect not in vals else np.array(vals[effect], float)
+
+
+def score_benchmark(ctx: GapContext, cases: Sequence[Case], diags: Sequence[DatasetDiagnosis],
+                    epsilon: float = 3.0) -> dict[str, pd.DataFrame]:
+    """Confusion matrix, per-case table (identified vs injected, gaps) and effect-size errors."""
+    by_name = {d.name: d for d in diags}
+    rows, size_rows = [], []
+    for c in cases:
+        d = by_name[c.name]
+        tab = d.effects.set_index("candidate")
+        ident = d.summary["chosen"]
+        gap_base = float(tab.loc["none", "gap_cv"])
+        gap_chosen = float(tab.loc[ident, "gap_cv"])
+        gap_inj = float(tab.loc[c.label, "gap_cv"]) if c.label in tab.index else np.nan
+        floor = float(1 - data_discrepancy(c.forces_clean, c.forces, epsilon).mean())
+        possible = gap_base - floor
+        rows.append({"case": c.name, "injected": c.label,
+                     "theta_true": "; ".join(f"{n}: {EFFECTS[n](ctx).describe(th)}" for n, th in c.theta.items()) or "-",
+                     "identified": ident, "p_best": d.summary["p_best_chosen"],
+                     "correct": ident == c.label,
+                     "overlap": (ident == c.label) or bool(set(c.injected) & set(parse_label(ident))),
+                     "gap_base": gap_base, "gap_chosen": gap_chosen, "gap_injected_effect": gap_inj,
+                     "gap_noise_floor": floor, "shrink_achieved": gap_base - gap_chosen, "shrink_possible": possible,
+                     "shrink_share": (gap_base - gap_chosen) / possible if possible > 1e-9 else np.nan})
+        for n, th in c.theta.items():
+            est = _theta_from(d, n)
+            eff = EFFECTS[n](ctx)
+            for k, prm in enumerate(eff.params()):
+                e = np.nan if est is None else float(est[k])
+                size_rows.append({"case": c.name, "injected": c.label, "effect": n, "parameter": prm.name,
+                                  "true": float(th[k]), "estimated": e, "error": e - float(th[k]),
+                                  "error_share_of_range": (e - float(th[k])) / (prm.hi - prm.lo),
+                                  "identified": ident})
+    per_case = pd.DataFrame(rows)
+    labels_inj = list(dict.fromkeys(["none"] + sorted(set(per_case["injected"]) - {"none"})))
+    labels_id = list(dict.fromkeys(labels_inj + sorted(set(per_case["identified"]))))
+    conf = pd.crosstab(pd.Categorical(per_case["injected"], labels_inj),
+                       pd.Categorical(per_case["identified"], labels_id), dropna=False)
+    conf.index.name = "injected \\ identified"
+    conf.columns.name = None
+    conf = conf.reset_index()
+    return {"per_case": per_case, "confusion": conf, "effect_size": pd.DataFrame(size_rows)}
+
+
+def run_benchmark(ctx: GapContext, bs: BenchmarkSettings, ds: DiagnosisSettings, rng: np.random.Generator,
+                  progress=None):
+    """Generate, diagnose blind, score. Returns (cases, diagnoses, score tables)."""
+    cases = generate_cases(ctx, bs, rng)
+    if progress:
+        progress(f"benchmark: {len(cases)} cases generated (labels withheld from the diagnosis)")
+    diags = diagnose(ctx, blind(cases), ds, np.random.default_rng(rng.integers(2**32)), progress)
+    return cases, diags, score_benchmark(ctx, cases, diags, ds.epsilon)

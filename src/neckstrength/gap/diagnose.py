@@ -1,0 +1,624 @@
+"""Gap diagnosis: where the fitted model misses the measured forces, which effect explains it, how far
+the gap shrinks.
+
+The diagnosis sees forces only (:class:`BlindData`: a name and one maximum force per test direction).
+For every data set it sets up ``folds + 1`` fitting problems: one per cross-validation fold (the fold's
+directions held out: weight 0 in the loss) and one on all directions. Problems of all data sets are fitted
+together (:func:`neckstrength.gap.fit.fit_strengths`), but each has its own targets and loss, so data sets
+never inform each other.
+
+**Which.** For each effect (:mod:`neckstrength.gap.effects`) the strengths are fitted at every point of a
+parameter grid (neutral = the fitted model itself). Each problem picks the grid point with its lowest
+training loss, so the effect parameters of a fold are chosen without its held-out directions too. The
+held-out predictions of all folds give each direction one out-of-sample prediction; the held-out gap is
+``1 - D_cv`` with ``D_cv`` the thesis's data discrepancy (Eq. 5.5, 5.6) over those predictions. Score =
+held-out gap + ``penalty`` x extra parameters. Pairs of effects (the best single effects, different
+families) are fitted on the product of each effect's best grid points per problem. Uncertainty: the
+directions are resampled with replacement (bootstrap), giving each candidate's probability of ranking
+first and a percentile interval of its score difference from the base model.
+
+**Where.** Residuals of the fitted model (all directions, and held out) per direction, aggregated by
+plane of the 3 x 3 grid (Fig. 4.2 / A.3), by signed wrench component (weights: the unit moment / force
+direction) and by active muscle group (weights: the fit's activations), and the *reach envelope*: for
+each direction the range of its force relative to the others (log force ratio to the data, minus the
+mean over directions) that any strength vector within the fit bounds attains - sampled, then pushed
+outwards by gradient steps. A direction whose measured value (0) lies outside the envelope cannot be
+fitted by any estimator with this model.
+
+**How far.** Held-out gap (1 - D_cv and RMS relative residual) before (base) and after (chosen effect),
+with the chosen effect's parameters from the fit on all directions (optionally refined by a local
+pattern search).
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..abc import data_discrepancy
+from ..geometry import PLANE_GRID, WRENCH_COMPONENTS
+from .effects import Effect, GapContext, available_effects, base_instance, compose, effect_label
+from .fit import FitSettings, Simulator, fit_strengths, make_cache, start_point
+
+__all__ = ["BlindData", "DiagnosisSettings", "DatasetDiagnosis", "diagnose", "direction_folds", "reach_envelope",
+           "emg_group_activation"]
+
+
+@dataclass(frozen=True)
+class BlindData:
+    """What the diagnosis is given: a name and the measured maximum force (N) per test direction."""
+
+    name: str
+    forces: np.ndarray
+
+
+@dataclass(frozen=True)
+class DiagnosisSettings:
+    effects: tuple[str, ...] = ("cocontraction", "cocontraction_groups", "direction_tolerance", "kinematic",
+                                "asymmetry", "finer_groups", "origin_offset", "point_scale", "shoulder_girdle")
+    grid_points: int = 5
+    folds: int = 5
+    pairs_top: int = 3
+    pair_grid_top: int = 1
+    penalty: float = 0.005
+    epsilon: float = 3.0
+    bootstrap: int = 500
+    starts: int = 4
+    start_spread: float = 0.5
+    refine_iter: int = 0
+    reach_samples: int = 1500
+    reach_iter: int = 8
+    seed: int = 0
+    fit: FitSettings = FitSettings()
+
+
+@dataclass
+class DatasetDiagnosis:
+    name: str
+    residuals: pd.DataFrame      # per direction
+    planes: pd.DataFrame
+    components: pd.DataFrame
+    muscles: pd.DataFrame
+    effects: pd.DataFrame        # candidate ranking
+    strengths: pd.DataFrame      # fitted strengths (all directions) of base and chosen candidate
+    summary: dict = field(default_factory=dict)
+    activations: dict = field(default_factory=dict)   # candidate -> (K x m) model-muscle activations (full fit)
+
+
+def direction_folds(K: int, folds: int, rng: np.random.Generator) -> np.ndarray:
+    """Fold of each direction: a random permutation dealt round-robin (leave-one-out when folds >= K)."""
+    folds = min(int(folds), K)
+    return rng.permutation(K) % folds
+
+
+def _key(pairs: Sequence[tuple[str, np.ndarray]], registry: dict | None = None) -> tuple:
+    """Canonical key of an effect combination: sorted by name, neutral effects dropped (same model)."""
+    out = []
+    for n, th in pairs:
+        th = tuple(float(x) for x in np.asarray(th, float))
+        if registry is not None and registry[n].is_neutral(np.array(th)):
+            continue
+        out.append((n, th))
+    return tuple(sorted(out))
+
+
+class _Engine:
+    """Fits of every (effect combination, parameter) key for all problems; results cached by key."""
+
+    def __init__(self, ctx: GapContext, data: Sequence[BlindData], s: DiagnosisSettings, folds: np.ndarray,
+                 registry: dict[str, Effect]):
+        self.ctx, self.s, self.folds, self.registry = ctx, s, folds, registry
+        self.cache = make_cache()
+        self.F = int(folds.max()) + 1
+        self.nd = len(data)
+        K = ctx.K
+        T, W, ds, fo = [], [], [], []
+        for i, d in enumerate(data):
+            f = np.asarray(d.forces, float)
+            if f.shape != (K,) or not np.all(np.isfinite(f)) or np.any(f <= 0):
+                raise ValueError(f"data set {d.name}: need {K} positive finite forces")
+            for fold in list(range(self.F)) + [-1]:
+                T.append(f)
+                W.append((folds != fold).astype(float) if fold >= 0 else np.ones(K))
+                ds.append(i)
+                fo.append(fold)
+        self.T, self.W = np.array(T), np.array(W)
+        self.pds, self.pfold = np.array(ds), np.array(fo)
+        self.P = len(self.T)
+        self.base_sim = Simulator(ctx, base_instance(ctx), self.cache, s.fit.chunk_size)
+        self.max_rounds = 4
+        self.prior = start_point(self.base_sim, self.T, self.W)
+        self.p = self.prior.shape[1]
+        self.results: dict[tuple, dict] = {}
+        self.n_fits = 0
+
+    def key(self, pairs) -> tuple:
+        return _key(pairs, self.registry)
+
+    def effects_of(self, key: tuple) -> tuple[list[Effect], list[np.ndarray]]:
+        effs = [self.registry[n] for n, _ in key]
+        return effs, [np.array(th) for _, th in key]
+
+    def sim(self, key: tuple) -> Simulator:
+        """A simulator for ``key`` (the base one is kept; others are built per use and dropped, with
+        their basis caches)."""
+        if key == ():
+            return self.base_sim
+        effs, ths = self.effects_of(key)
+        return Simulator(self.ctx, compose(self.ctx, effs, ths), None, self.s.fit.chunk_size)
+
+    def evaluate(self, key: tuple, warm: np.ndarray, mask: np.ndarray | None = None) -> dict:
+        """Fit the problems in ``mask`` for ``key`` with ``starts`` starts (warm start + perturbations)."""
+        mask = np.ones(self.P, bool) if mask is None else mask
+        old = self.results.get(key)
+        if old is not None:
+            mask = mask & ~old["done"]
+        idx = np.nonzero(mask)[0]
+        if old is None:
+            old = {"phi": np.full((self.P, self.p), np.nan), "loss": np.full(self.P, np.inf),
+                   "sse": np.full(self.P, np.inf), "forces": np.full((self.P, self.ctx.K), np.nan),
+                   "done": np.zeros(self.P, bool)}
+            self.results[key] = old
+        if len(idx) == 0:
+            return old
+        S = max(1, int(self.s.starts))
+        rng = np.random.default_rng([self.s.seed, zlib.crc32(repr(key).encode())])
+        phi0 = np.repeat(warm[idx], S, axis=0)
+        pert = rng.normal(0.0, self.s.start_spread, phi0.shape)
+        pert[::S] = 0.0
+        phi0 = phi0 + pert
+        rep = lambda a: np.repeat(a[idx], S, axis=0)  # noqa: E731
+        sim = self.sim(key)
+        sim.refresh(sim.muscles(phi0))       # candidate wrenches that are maximal at the start points
+        res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), phi0, rep(self.prior), self.s.fit)
+        for _ in range(self.max_rounds):     # active set of candidate wrenches (direction_tolerance)
+            if not sim.refresh(sim.muscles(res.phi)):
+                break
+            res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), res.phi, rep(self.prior), self.s.fit)
+        if sim.inst.J > 1:
+            res.forces = sim.run(sim.muscles(res.phi))[0]
+            res.loss, res.sse = _train_loss(res.forces, rep(self.T), rep(self.W), res.phi, rep(self.prior),
+                                            self.s.fit.ridge)
+        self.n_fits += len(phi0)
+        loss = res.loss.reshape(len(idx), S)
+        best = loss.argmin(axis=1)
+        pick = np.arange(len(idx)) * S + best
+        old["phi"][idx] = res.phi[pick]
+        old["loss"][idx] = res.loss[pick]
+        old["sse"][idx] = res.sse[pick]
+        old["forces"][idx] = res.forces[pick]
+        old["done"][idx] = True
+        return old
+
+
+def _train_loss(F, T, W, phi, prior, ridge):
+    sse = (W * (F / T - 1.0) ** 2).sum(axis=1)
+    return sse + ridge * ((phi - prior) ** 2).sum(axis=1), sse
+
+
+def _d(forces: np.ndarray, T: np.ndarray, eps: float) -> np.ndarray:
+    return data_discrepancy(forces, T, eps)
+
+
+def _selection(engine: _Engine, keys_per_problem: list[list[tuple]]) -> list[tuple]:
+    """Per problem, the key with the lowest training loss among its candidate keys."""
+    out = []
+    for p, keys in enumerate(keys_per_problem):
+        losses = [engine.results[k]["loss"][p] if k in engine.results else np.inf for k in keys]
+        out.append(keys[int(np.argmin(losses))])
+    return out
+
+
+def _cv_predictions(engine: _Engine, chosen: list[tuple], i: int) -> np.ndarray:
+    """Held-out prediction of every direction of data set ``i`` from its fold's chosen key."""
+    K = engine.ctx.K
+    pred = np.full(K, np.nan)
+    for p in np.nonzero(engine.pds == i)[0]:
+        f = engine.pfold[p]
+        if f < 0:
+            continue
+        sel = engine.folds == f
+        pred[sel] = engine.results[chosen[p]]["forces"][p, sel]
+    return pred
+
+
+def _refine(engine: _Engine, effs: list[Effect], start: list[tuple], iters: int, datasets: set[int]) -> list[tuple]:
+    """Local pattern search on the effect parameters of the all-direction problems of ``datasets``."""
+    full_p = [p for p in np.nonzero(engine.pfold < 0)[0] if engine.pds[p] in datasets]
+    cur = list(start)
+    lower = np.concatenate([e.lower for e in effs])
+    upper = np.concatenate([e.upper for e in effs])
+    step = (upper - lower) / max(2 * (engine.s.grid_points - 1), 2)
+    steps = [step.copy() for _ in full_p]
+    sizes = [len(e.neutral) for e in effs]
+
+    def to_key(vec):
+        parts, o = [], 0
+        for e, n in zip(effs, sizes):
+            parts.append((e.name, e.clip(vec[o:o + n])))
+            o += n
+        return engine.key(parts)
+
+    def vec_of(key):
+        d = dict(key)
+        return np.concatenate([np.array(d.get(e.name, tuple(e.neutral)), float) for e in effs])
+
+    for _ in range(iters):
+        moved = False
+        for a, p in enumerate(full_p):
+            if np.all(steps[a] < 1e-3 * (upper - lower)):
+                continue
+            v0 = vec_of(cur[p])
+            best_key, best_loss = cur[p], engine.results[cur[p]]["loss"][p]
+            for ax in range(len(v0)):
+                for sgn in (-1.0, 1.0):
+                    v = v0.copy()
+                    v[ax] = np.clip(v[ax] + sgn * steps[a][ax], lower[ax], upper[ax])
+                    key = to_key(v)
+                    if key == cur[p]:
+                        continue
+                    mask = np.zeros(engine.P, bool)
+                    mask[p] = True
+                    r = engine.evaluate(key, engine.results[cur[p]]["phi"], mask)
+                    if r["loss"][p] < best_loss - 1e-12:
+                        best_key, best_loss = key, r["loss"][p]
+            if best_key != cur[p]:
+                cur[p] = best_key
+                moved = True
+            else:
+                steps[a] = steps[a] / 2
+        if not moved and all(np.all(st < 1e-3 * (upper - lower)) for st in steps):
+            break
+    return cur
+
+
+def reach_envelope(sim: Simulator, T: np.ndarray, phi_fit: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                   n_samples: int, iters: int, rng: np.random.Generator) -> pd.DataFrame:
+    """Range of ``s_k = log(F_k / T_k) - mean_j log(F_j / T_j)`` over strengths within [lo, hi] (log).
+
+    Samples: a third uniform in the log box, a third around the fit (SD 1 in log strength), a third close
+    to it (SD 0.3); then ``iters`` projected gradient steps (three step sizes each) from the extreme
+    sample of every direction and sign. Returns per direction ``s_min``, ``s_max``, ``s_fit``.
+    """
+    K, p = len(T), len(phi_fit)
+    n3 = max(1, n_samples // 3)
+    box = lo + (hi - lo) * rng.random((n3, p))
+    near = np.clip(phi_fit + rng.normal(0, 1.0, (n3, p)), lo, hi)
+    close = np.clip(phi_fit + rng.normal(0, 0.3, (n3, p)), lo, hi)
+    Phi = np.vstack([phi_fit[None], box, near, close])
+    lt = np.log(T)
+
+    def svals(Phi):
+        Fr = sim.forces_phi(Phi)
+        with np.errstate(divide="ignore"):
+            L = np.log(Fr) - lt[None]
+        ok = np.all(np.isfinite(L), axis=1)
+        S = L - L.mean(axis=1, keepdims=True)
+        S[~ok] = np.nan
+        return S
+
+    S = svals(Phi)
+    s_fit = S[0]
+    smax, smin = np.nanmax(S, axis=0), np.nanmin(S, axis=0)
+    if iters > 0 and np.isfinite(S).any():
+        # start points: argmax / argmin per direction
+        starts = np.vstack([Phi[np.nanargmax(S[:, k])] for k in range(K)] + [Phi[np.nanargmin(S[:, k])] for k in range(K)])
+        sign = np.r_[np.ones(K), -np.ones(K)]
+        target = np.r_[np.arange(K), np.arange(K)]
+        cur = starts.copy()
+        val = sign * np.r_[smax, smin]
+        h = 1e-3
+        etas = np.array([0.05, 0.2, 0.6])
+        for _ in range(iters):
+            n = len(cur)
+            Ph = cur[:, None, :] + h * np.eye(p)[None]
+            Sh = svals(np.clip(Ph, lo, hi).reshape(-1, p)).reshape(n, p, K)
+            Sc = svals(cur)
+            g = (Sh[np.arange(n), :, target] - Sc[np.arange(n), target][:, None]) / h * sign[:, None]
+            g = np.nan_to_num(g)
+            gn = np.linalg.norm(g, axis=1, keepdims=True)
+            gn[gn == 0] = 1.0
+            trial = np.clip(cur[:, None, :] + etas[None, :, None] * (g / gn)[:, None, :], lo, hi)
+            St = svals(trial.reshape(-1, p)).reshape(n, len(etas), K)
+            tv = sign[:, None] * St[np.arange(n), :, target]
+            tv = np.where(np.isfinite(tv), tv, -np.inf)
+            b = tv.argmax(axis=1)
+            bv = tv[np.arange(n), b]
+            up = bv > val
+            cur[up] = trial[np.arange(n), b][up]
+            val[up] = bv[up]
+        smax = np.maximum(smax, val[:K])
+        smin = np.minimum(smin, -val[K:])
+    return pd.DataFrame({"s_min": smin, "s_max": smax, "s_fit": s_fit})
+
+
+def emg_group_activation(ctx: GapContext, inst_sim: Simulator, f_muscles: np.ndarray,
+                         alpha: np.ndarray) -> np.ndarray:
+    """Mean activation (K,) of the EMG-recorded groups (both sides) at the predicted maxima.
+
+    Element forces from the column activations (``alpha`` K x m'), divided by the element strengths
+    (full-model strengths scaled with their group); one value per EMG group, then their mean.
+    """
+    inst = inst_sim.inst
+    full, model = ctx.full, ctx.model
+    fcol = inst.strengths(f_muscles[None, :])[0]
+    x = np.nan_to_num(alpha) * fcol[None, :]                      # column forces (K x m')
+    xel = x @ inst.elem.T                                         # element forces (K x 96)
+    scale = np.zeros(full.m)
+    for g in range(model.m):
+        members = model.S[:, g] > 0
+        scale[members] = f_muscles[g] / model.strengths[g] if model.strengths[g] > 0 else 0.0
+    fel = full.strengths * scale
+    vals = []
+    for b in ctx.emg_groups:
+        cols = [g for g in range(model.m) if ctx.group_base(g) == b]
+        members = np.zeros(full.m, bool)
+        for g in cols:
+            members |= model.S[:, g] > 0
+        if not members.any() or fel[members].sum() <= 0:
+            continue
+        vals.append(xel[:, members].sum(axis=1) / fel[members].sum())
+    return np.mean(vals, axis=0) if vals else np.full(len(alpha), np.nan)
+
+
+def _component_table(dirs: pd.DataFrame, r_in: np.ndarray, r_cv: np.ndarray) -> pd.DataFrame:
+    U = dirs[[f"u_{c}" for c in WRENCH_COMPONENTS]].to_numpy(float)
+    M, F = U[:, :3], U[:, 3:]
+    Mh = M / np.maximum(np.linalg.norm(M, axis=1, keepdims=True), 1e-12)
+    Fh = F / np.linalg.norm(F, axis=1, keepdims=True)
+    rows = []
+    for block, V, names in (("moment", Mh, WRENCH_COMPONENTS[:3]), ("force", Fh, WRENCH_COMPONENTS[3:])):
+        for c, name in enumerate(names):
+            for sgn, tag in ((1.0, "+"), (-1.0, "-")):
+                w = np.maximum(sgn * V[:, c], 0.0)
+                if w.sum() <= 1e-9:
+                    continue
+                rows.append({"component": f"{tag}{name}", "kind": block, "weight_sum": w.sum(),
+                             "n_directions": int((w > 0.3).sum()),
+                             "mean_residual": np.average(r_in, weights=w),
+                             "rms_residual": float(np.sqrt(np.average(r_in ** 2, weights=w))),
+                             "mean_residual_cv": np.average(r_cv, weights=w),
+                             "rms_residual_cv": float(np.sqrt(np.average(r_cv ** 2, weights=w)))})
+    return pd.DataFrame(rows)
+
+
+def _plane_table(dirs: pd.DataFrame, r_in, r_cv, d_cv) -> pd.DataFrame:
+    rows = []
+    planes = [set(str(p).split(";")) for p in dirs["planes"]]
+    for grid_row in PLANE_GRID:
+        for pl in grid_row:
+            sel = np.array([pl in s for s in planes])
+            if not sel.any():
+                continue
+            rows.append({"plane": pl, "n_directions": int(sel.sum()),
+                         "directions": ";".join(dirs["name"][sel]),
+                         "mean_residual": r_in[sel].mean(), "rms_residual": float(np.sqrt((r_in[sel] ** 2).mean())),
+                         "mean_residual_cv": r_cv[sel].mean(),
+                         "rms_residual_cv": float(np.sqrt((r_cv[sel] ** 2).mean())),
+                         "D_cv": d_cv[sel].mean()})
+    return pd.DataFrame(rows)
+
+
+def _muscle_table(ctx: GapContext, alpha: np.ndarray, r_in, r_cv) -> pd.DataFrame:
+    rows = []
+    for j, name in enumerate(ctx.model.muscle_names):
+        w = np.nan_to_num(alpha[:, j])
+        if w.sum() <= 1e-9:
+            rows.append({"muscle": name, "activation_sum": 0.0, "n_active": 0, "mean_residual": np.nan,
+                         "rms_residual": np.nan, "mean_residual_cv": np.nan, "rms_residual_cv": np.nan})
+            continue
+        rows.append({"muscle": name, "activation_sum": w.sum(), "n_active": int((w > 0.5).sum()),
+                     "mean_residual": np.average(r_in, weights=w),
+                     "rms_residual": float(np.sqrt(np.average(r_in ** 2, weights=w))),
+                     "mean_residual_cv": np.average(r_cv, weights=w),
+                     "rms_residual_cv": float(np.sqrt(np.average(r_cv ** 2, weights=w)))})
+    return pd.DataFrame(rows)
+
+
+def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSettings = DiagnosisSettings(),
+             rng: np.random.Generator | None = None, progress=None) -> list[DatasetDiagnosis]:
+    """Diagnose each data set in ``data`` (forces only) with the model of ``ctx``; see the module docstring."""
+    s = settings
+    rng = rng or np.random.default_rng(s.seed)
+    say = progress or (lambda msg: None)
+    K = ctx.K
+    folds = direction_folds(K, s.folds, rng)
+    effects = available_effects(ctx, s.effects)
+    eng = _Engine(ctx, data, s, folds, {e.name: e for e in effects})
+    say(f"{len(data)} data set(s), {K} directions, {eng.F} folds, {eng.P} fitting problems; effects: "
+        f"{', '.join(e.name for e in effects)}")
+    # ---- base model
+    base = eng.evaluate((), eng.prior)
+    say(f"base model fitted ({eng.n_fits} fits so far)")
+    # ---- single effects on their grids
+    cand_keys: dict[str, list[tuple]] = {"none": [()]}
+    cand_params: dict[str, int] = {"none": 0}
+    cand_datasets: dict[str, set[int]] = {"none": set(range(eng.nd))}
+    for e in effects:
+        grid = e.grid(s.grid_points)
+        done: list[tuple[np.ndarray, tuple]] = [(e.neutral, ())]
+        span = np.maximum(e.upper - e.lower, 1e-12)
+        for th in grid[1:]:
+            near = min(done, key=lambda t: float(np.linalg.norm((t[0] - th) / span)))
+            key = eng.key([(e.name, th)])
+            eng.evaluate(key, eng.results[near[1]]["phi"])
+            done.append((th, key))
+        cand_keys[e.name] = [k for _, k in done]
+        cand_params[e.name] = e.n_params
+        cand_datasets[e.name] = set(range(eng.nd))
+        say(f"effect {e.name}: {len(grid)} grid points ({eng.n_fits} fits so far)")
+    per_problem = {c: [list(keys) for _ in range(eng.P)] for c, keys in cand_keys.items()}
+
+    def scores_for(c):
+        chosen = _selection(eng, per_problem[c])
+        out = []
+        for i in range(eng.nd):
+            pred = _cv_predictions(eng, chosen, i)
+            out.append(pred)
+        return chosen, out
+
+    selections = {}
+    cv_pred = {}
+    for c in cand_keys:
+        selections[c], cv_pred[c] = scores_for(c)
+
+    def cv_score(c, i):
+        d = _d(cv_pred[c][i], eng.T[i * (eng.F + 1)], s.epsilon)
+        return (1 - d.mean()) + s.penalty * cand_params[c]
+
+    # ---- pairs of the best single effects (per data set), different families
+    pair_sets: dict[str, set[int]] = {}
+    for i in range(eng.nd):
+        singles = sorted((c for c in cand_keys if c != "none"), key=lambda c: cv_score(c, i))[: s.pairs_top]
+        for a in range(len(singles)):
+            for b in range(a + 1, len(singles)):
+                ea, eb = eng.registry[singles[a]], eng.registry[singles[b]]
+                if ea.family == eb.family:
+                    continue
+                lab = effect_label(sorted([ea.name, eb.name], key=lambda n: list(eng.registry).index(n)))
+                pair_sets.setdefault(lab, set()).add(i)
+    for lab, dss in pair_sets.items():
+        na, nb = lab.split("+")
+        ea, eb = eng.registry[na], eng.registry[nb]
+        nested = list(cand_keys[na]) + cand_keys[nb][1:]          # both single effects (and none) are nested
+        per_problem[lab] = [list(nested) if eng.pds[p] in dss else [()] for p in range(eng.P)]
+        combos: dict[tuple, np.ndarray] = {}
+        for p in range(eng.P):
+            if eng.pds[p] not in dss:
+                continue
+            tops = []
+            for name in (na, nb):
+                ks = sorted((k for k in cand_keys[name] if k != ()), key=lambda k: eng.results[k]["loss"][p])
+                tops.append(ks[: s.pair_grid_top])
+            for ka in tops[0]:
+                for kb in tops[1]:
+                    key = eng.key([ka[0], kb[0]])
+                    combos.setdefault(key, np.zeros(eng.P, bool))[p] = True
+                    if key not in per_problem[lab][p]:
+                        per_problem[lab][p].append(key)
+        for key, mask in combos.items():
+            ka, kb = (eng.key([kv]) for kv in key)
+            warm = np.where((eng.results[ka]["loss"] <= eng.results[kb]["loss"])[:, None],
+                            eng.results[ka]["phi"], eng.results[kb]["phi"])
+            eng.evaluate(key, warm, mask)
+        cand_params[lab] = ea.n_params + eb.n_params
+        cand_datasets[lab] = set(dss)
+        selections[lab], cv_pred[lab] = scores_for(lab)
+        say(f"pair {lab}: {len(combos)} parameter combinations for {len(dss)} data set(s) ({eng.n_fits} fits)")
+    # ---- refinement of the all-direction fits' effect parameters
+    refined: dict[str, list[tuple]] = {c: list(selections[c]) for c in selections}
+    for c in list(selections):
+        if c == "none" or s.refine_iter <= 0:
+            continue
+        effs = [eng.registry[n] for n in c.split("+")]
+        refined[c] = _refine(eng, effs, list(selections[c]), s.refine_iter, cand_datasets[c])
+    if s.refine_iter > 0:
+        say(f"effect parameters refined ({eng.n_fits} fits)")
+    # ---- per data set results
+    out = []
+    for i, dat in enumerate(data):
+        out.append(_dataset_result(eng, i, dat, cand_datasets, cand_params, selections, refined, cv_pred, rng))
+        say(f"{dat.name}: chosen {out[-1].summary['chosen']}; held-out gap "
+            f"{out[-1].summary['gap_before']:.3f} -> {out[-1].summary['gap_after']:.3f} (1 - D_cv)")
+    return out
+
+
+def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_params, selections, refined, cv_pred,
+                    rng) -> DatasetDiagnosis:
+    ctx, s = eng.ctx, eng.s
+    K = ctx.K
+    T = np.asarray(dat.forces, float)
+    pfull = int(np.nonzero((eng.pds == i) & (eng.pfold < 0))[0][0])
+    cands = ["none"] + [c for c in selections if c != "none" and i in cand_datasets[c]]
+    dcv = {c: _d(cv_pred[c][i], T, s.epsilon) for c in cands}
+    rcv = {c: cv_pred[c][i] / T - 1 for c in cands}
+    score = {c: (1 - dcv[c].mean()) + s.penalty * cand_params[c] for c in cands}
+    # bootstrap over directions
+    B = int(s.bootstrap)
+    idx = rng.integers(0, K, (B, K)) if B > 0 else np.zeros((0, K), int)
+    boot = np.array([[(1 - dcv[c][ix].mean()) + s.penalty * cand_params[c] for c in cands] for ix in idx])
+    pbest = np.bincount(boot.argmin(axis=1), minlength=len(cands)) / max(B, 1) if B else np.full(len(cands), np.nan)
+    chosen = min(cands, key=lambda c: score[c])
+    rows = []
+    for j, c in enumerate(cands):
+        key = refined[c][pfull]
+        r_full = eng.results[key]
+        f_in = r_full["forces"][pfull]
+        d_in = _d(f_in, T, s.epsilon)
+        delta = boot[:, j] - boot[:, 0] if B else np.array([np.nan])
+        effs = [] if c == "none" else [eng.registry[n] for n in c.split("+")]
+        kd = dict(key)
+        theta = "; ".join(f"{e.name}: {e.describe(np.array(kd.get(e.name, tuple(e.neutral))))}" for e in effs)
+        rows.append({"candidate": c, "n_params": cand_params[c], "D_cv": dcv[c].mean(),
+                     "gap_cv": 1 - dcv[c].mean(), "rms_rel_cv": float(np.sqrt(np.nanmean(rcv[c] ** 2))),
+                     "score": score[c], "delta_score_vs_none": score[c] - score["none"],
+                     "delta_ci_low": float(np.percentile(delta, 5)), "delta_ci_high": float(np.percentile(delta, 95)),
+                     "p_best": pbest[j], "D_fit": d_in.mean(),
+                     "rms_rel_fit": float(np.sqrt(np.mean((f_in / T - 1) ** 2))),
+                     "theta": theta or "-",
+                     "theta_values": json.dumps({e.name: [float(v) for v in kd.get(e.name, tuple(e.neutral))]
+                                                 for e in effs})})
+    eff_tab = pd.DataFrame(rows).sort_values("score").reset_index(drop=True)
+    eff_tab.insert(0, "rank", np.arange(1, len(eff_tab) + 1))
+    # ---- where: base model residuals
+    dirs = ctx.directions.reset_index(drop=True)
+    base_full = eng.results[()]
+    f_in = base_full["forces"][pfull]
+    r_in = f_in / T - 1
+    r_cv = rcv["none"]
+    d_cv = dcv["none"]
+    sim_b = eng.base_sim
+    phi_b = base_full["phi"][pfull]
+    fm = sim_b.muscles(phi_b)[0]
+    fb, st, _, alpha_b = sim_b.run(fm[None], return_alpha=True)
+    env = reach_envelope(sim_b, T, phi_b, eng.prior[pfull] + np.log(s.fit.bounds_rel[0]),
+                         eng.prior[pfull] + np.log(s.fit.bounds_rel[1]), s.reach_samples, s.reach_iter, rng)
+    chosen_key = refined[chosen][pfull]
+    f_ch_full = eng.results[chosen_key]["forces"][pfull]
+    resid = pd.DataFrame({
+        "direction": dirs["name"], "planes": dirs["planes"], "measured_N": T,
+        "fit_N": f_in, "residual": r_in, "heldout_N": cv_pred["none"][i], "residual_cv": r_cv, "d_cv": d_cv,
+        "fold": eng.folds, "chosen_fit_N": f_ch_full, "chosen_heldout_N": cv_pred[chosen][i],
+        "chosen_residual_cv": rcv[chosen], "chosen_d_cv": dcv[chosen],
+        "reach_s_min": env["s_min"], "reach_s_max": env["s_max"], "reach_s_fit": env["s_fit"]})
+    resid["reach"] = np.where(env["s_max"] < 0, "too strong for the model",
+                              np.where(env["s_min"] > 0, "too weak for the model", "reachable"))
+    planes = _plane_table(dirs, r_in, r_cv, d_cv)
+    comps = _component_table(dirs, r_in, r_cv)
+    muscles = _muscle_table(ctx, alpha_b[0][:, :ctx.model.m], r_in, r_cv)
+    # fitted strengths
+    srows = []
+    for c in dict.fromkeys(["none", chosen]):
+        phi = eng.results[refined[c][pfull]]["phi"][pfull]
+        fmc = sim_b.muscles(phi)[0]
+        for j, n in enumerate(ctx.model.muscle_names):
+            srows.append({"candidate": c, "muscle": n, "f_base_N": ctx.model.strengths[j], "f_fit_N": fmc[j]})
+    # activations of every candidate's all-direction fit (model muscles; EMG mean for the A.3 check)
+    acts = {}
+    for c in cands:
+        key = refined[c][pfull]
+        sim = eng.sim(key)
+        phi = eng.results[key]["phi"][pfull]
+        fmc = sim.muscles(phi)[0]
+        _, _, _, al = sim.run(fmc[None], return_alpha=True)
+        acts[c] = emg_group_activation(ctx, sim, fmc, al[0])
+    summary = {
+        "dataset": dat.name, "model": ctx.model.name, "n_directions": K, "folds": int(eng.F),
+        "chosen": chosen, "chosen_theta": eff_tab.set_index("candidate").loc[chosen, "theta"],
+        "p_best_chosen": float(eff_tab.set_index("candidate").loc[chosen, "p_best"]),
+        "gap_before": float(1 - d_cv.mean()), "gap_after": float(1 - dcv[chosen].mean()),
+        "rms_before": float(np.sqrt(np.mean(r_cv ** 2))), "rms_after": float(np.sqrt(np.mean(rcv[chosen] ** 2))),
+        "D_fit_base": float(_d(f_in, T, s.epsilon).mean()),
+        "D_fit_chosen": float(_d(f_ch_full, T, s.epsilon).mean()),
+        "worst_plane": str(planes.sort_values("rms_residual_cv", ascending=False)["plane"].iloc[0]),
+        "worst_component": str(comps.sort_values("rms_residual_cv", ascending=False)["component"].iloc[0]),
+        "worst_directions": list(resid.sort_values("d_cv")["direction"].head(3)),
+        "unreachable": list(resid.loc[resid["reach"] != "reachable", "direction"]),
+        "penalty_per_param": s.penalty, "epsilon": s.epsilon,
+    }
+    return DatasetDiagnosis(dat.name, resid, planes, comps, muscles, eff_tab, pd.DataFrame(srows), summary, acts)

@@ -1,0 +1,702 @@
+"""Candidate unmodelled effects: a registry of model extensions with a few bounded, physical parameters.
+
+The base model is a reduced model of :mod:`neckstrength.model` in the max-wrench LP of Eq. 4.1 / 5.2.
+An effect turns it into a richer :class:`Instance`: more LP rows (joints, anchors), more columns
+(finer muscle units, passive torques, anchors), other activation bounds, other joint centres, other or
+more wrench directions per test (the measured maximum is the largest force over a set of directions).
+Every effect is **exactly** the base model at its neutral parameters (``apply`` returns the instance
+unchanged there), so the extended model nests the base model.
+
+Adding an effect is one new subclass of :class:`Effect` with a ``name``: it registers itself in
+:data:`EFFECTS` (``__init_subclass__``) and is then available to the fit, the diagnosis, the benchmark,
+the CLI and the pipeline (select it in ``config.yaml`` ``gap.effects``).
+
+Effects (thesis sources in each class):
+
+=====================  ===============================================================================
+cocontraction          floor ``c`` on every muscle's activation (antagonists cannot relax fully)
+cocontraction_groups   separate floors for the EMG-recorded superficial groups and for the others
+direction_tolerance    the measured maximum is the largest force over the Appendix A matching window
+kinematic              the 7-joint spine behind the fitted 3-/2-joint model, with passive torque capacity
+asymmetry              left/right strength ratio (models whose sides are tied in the fit)
+finer_groups           share of independent control of the elements inside each muscle group
+origin_offset          C0-C1 (skull-frame origin) displaced from its head-pad estimate (x, y)
+point_scale            test points farther from / closer to the head centre than reconstructed
+shoulder_girdle        trapezius and levator scapulae pull on an unfixed scapula: shared anchor capacity
+=====================  ===============================================================================
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field, replace
+from typing import ClassVar, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..geometry import PLANAR_INDEX, WRENCH_COMPONENTS, jacobian_transpose
+from ..model import COORDINATES, KINEMATIC_VARIANTS, FullModel, ReducedModel
+
+__all__ = ["Param", "GapContext", "Instance", "Effect", "EFFECTS", "available_effects", "base_instance", "compose",
+           "effect_label", "parse_label"]
+
+
+# --------------------------------------------------------------------------- context and instance
+
+@dataclass(frozen=True)
+class Param:
+    """One bounded effect parameter; ``neutral`` reproduces the base model."""
+
+    name: str
+    lo: float
+    hi: float
+    neutral: float
+    unit: str = ""
+    doc: str = ""
+
+
+@dataclass(frozen=True)
+class GapContext:
+    """What effects may use: the full and the fitted (base) model, and the test directions.
+
+    ``directions``: the rows of the geometry direction table that the data set uses, in data order
+    (points ``px..pz``, normals ``nx..nz``, unit wrenches ``u_*``, ``force_scale``, ``planes``).
+    ``emg_groups``: base names of the model's EMG-recorded groups (config ``chapter5.emg_groups``);
+    ``shoulder_muscles``: full-model base names of the muscles attached to the shoulder girdle;
+    ``settings``: per-effect physical constants (config ``gap.effect_settings``).
+    """
+
+    full: FullModel
+    model: ReducedModel
+    directions: pd.DataFrame
+    head_centre: np.ndarray
+    emg_groups: tuple[str, ...] = ()
+    shoulder_muscles: tuple[str, ...] = ("trap cl", "trap acr", "levator scap")
+    tie_sides: bool = False
+    settings: Mapping[str, Mapping] = field(default_factory=dict)
+
+    @property
+    def K(self) -> int:
+        return len(self.directions)
+
+    def group_base(self, j: int) -> str:
+        """Model group name without the side suffix ('SCM-R' -> 'SCM')."""
+        n = self.model.muscle_names[j]
+        return n[:-2] if (not self.model.planar and n.endswith(("-R", "-L"))) else n
+
+    def group_side(self, j: int) -> str:
+        n = self.model.muscle_names[j]
+        if self.model.planar:
+            return "both"
+        return "L" if n.endswith("-L") else ("R" if n.endswith("-R") else "both")
+
+
+@dataclass(frozen=True)
+class Instance:
+    """A (possibly extended) max-wrench model for one set of test directions.
+
+    LP rows ``rows`` (joint coordinates, then added rows), columns ``cols`` (model muscles, then added
+    columns). Column strengths are affine in the base model's strengths ``f`` (m): ``A f + a0``.
+    ``col_group``: the base-model muscle a column belongs to (-1: not a muscle, e.g. passive torque).
+    ``elem`` (96 x m'): force of each full-model element per unit of column force (0 for non-muscles).
+    ``lb``/``ub`` (K x m'): activation bounds per test direction. ``U6`` (K x J x 6) and ``fmul`` (K x J):
+    J candidate unit wrenches per test and the force (N) per unit wrench magnitude along each; the
+    predicted force of test k is ``max_j w*(U6[k, j]) * fmul[k, j]``.
+    """
+
+    R: np.ndarray
+    JT: np.ndarray
+    row_centre: np.ndarray
+    row_axis: np.ndarray
+    rows: tuple[str, ...]
+    A: np.ndarray
+    a0: np.ndarray
+    cols: tuple[str, ...]
+    col_group: np.ndarray
+    elem: np.ndarray
+    lb: np.ndarray
+    ub: np.ndarray
+    P: np.ndarray
+    N: np.ndarray
+    U6: np.ndarray
+    fmul: np.ndarray
+    planar: bool
+    labels: tuple[str, ...] = ()
+
+    @property
+    def muscle_cols(self) -> np.ndarray:
+        return self.col_group >= 0
+
+    @property
+    def J(self) -> int:
+        return self.U6.shape[1]
+
+    def strengths(self, F: np.ndarray) -> np.ndarray:
+        """Column strengths for base-model strength vectors ``F`` (N x m)."""
+        return np.maximum(np.atleast_2d(F) @ self.A.T + self.a0[None, :], 0.0)
+
+    def task_directions(self, model: ReducedModel) -> np.ndarray:
+        """(K*J, d) unit wrenches in the model's task space, as :meth:`ReducedModel.task_direction`."""
+        return model.task_direction(self.U6.reshape(-1, 6))
+
+    def reduced(self, model: ReducedModel) -> ReducedModel:
+        """This instance as a :class:`ReducedModel` for :func:`neckstrength.maxwrench.solve_max_wrench`."""
+        name = model.name + ("" if not self.labels else "+" + "+".join(self.labels))
+        return replace(model, name=name, coordinates=self.rows, muscle_names=self.cols,
+                       strengths=self.strengths(model.strengths[None, :])[0], moment_arms=self.R, JT=self.JT,
+                       S=self.elem)
+
+
+def base_instance(ctx: GapContext) -> Instance:
+    """The fitted model itself as an :class:`Instance` (directions and scales exactly as in the data set)."""
+    model, full = ctx.model, ctx.full
+    rows_idx = [COORDINATES.index(c) for c in model.coordinates]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        elem = np.where(model.strengths[None, :] > 0,
+                        full.strengths[:, None] * model.S / np.where(model.strengths > 0, model.strengths, 1)[None, :],
+                        0.0)
+    d = ctx.directions
+    U6 = d[[f"u_{c}" for c in WRENCH_COMPONENTS]].to_numpy(float)[:, None, :]
+    fmul = 1.0 / d["force_scale"].to_numpy(float)[:, None]
+    K, m = len(d), model.m
+    return Instance(R=model.moment_arms, JT=model.JT, row_centre=full.centres[rows_idx],
+                    row_axis=full.axes[rows_idx], rows=tuple(model.coordinates), A=np.eye(m), a0=np.zeros(m),
+                    cols=tuple(model.muscle_names), col_group=np.arange(m), elem=elem, lb=np.zeros((K, m)),
+                    ub=np.ones((K, m)), P=d[["px", "py", "pz"]].to_numpy(float),
+                    N=d[["nx", "ny", "nz"]].to_numpy(float), U6=U6, fmul=fmul, planar=model.planar)
+
+
+def _add_columns(inst: Instance, R_cols: np.ndarray, A_rows: np.ndarray, a0: np.ndarray, names: Sequence[str],
+                 col_group: np.ndarray | None = None, elem: np.ndarray | None = None) -> Instance:
+    k = R_cols.shape[1]
+    K = inst.lb.shape[0]
+    return replace(inst, R=np.hstack([inst.R, R_cols]), A=np.vstack([inst.A, A_rows]), a0=np.r_[inst.a0, a0],
+                   cols=inst.cols + tuple(names),
+                   col_group=np.r_[inst.col_group, np.full(k, -1) if col_group is None else col_group],
+                   elem=np.hstack([inst.elem, np.zeros((inst.elem.shape[0], k)) if elem is None else elem]),
+                   lb=np.hstack([inst.lb, np.zeros((K, k))]), ub=np.hstack([inst.ub, np.ones((K, k))]))
+
+
+def _add_rows(inst: Instance, R_rows: np.ndarray, JT_rows: np.ndarray, centres: np.ndarray, axes: np.ndarray,
+              names: Sequence[str]) -> Instance:
+    return replace(inst, R=np.vstack([inst.R, R_rows]), JT=np.vstack([inst.JT, JT_rows]),
+                   row_centre=np.vstack([inst.row_centre, centres]), row_axis=np.vstack([inst.row_axis, axes]),
+                   rows=inst.rows + tuple(names))
+
+
+def _jt_rows(centres: np.ndarray, axes: np.ndarray, planar: bool) -> np.ndarray:
+    JT = jacobian_transpose(centres, axes)
+    return JT[:, PLANAR_INDEX] if planar else JT
+
+
+def _wrench(P: np.ndarray, N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit wrenches (K x 6) and force per unit wrench magnitude (K,) of unit forces ``N`` at points ``P``."""
+    N = N / np.linalg.norm(N, axis=1, keepdims=True)
+    W = np.hstack([np.cross(P, N), N])
+    s = np.linalg.norm(W, axis=1)
+    return W / s[:, None], 1.0 / s
+
+
+# --------------------------------------------------------------------------- registry
+
+#: name -> effect class; filled by :meth:`Effect.__init_subclass__`.
+EFFECTS: dict[str, type["Effect"]] = {}
+
+
+class Effect:
+    """Base class of an unmodelled effect. Subclass it with a ``name`` to register a new effect.
+
+    Override ``params`` (the bounded parameters, with their neutral values), ``apply`` (how the
+    :class:`Instance` changes for parameters ``theta``) and optionally ``applies`` (whether the effect
+    is defined for the context's model). ``defaults``: physical constants, overridable per effect in
+    config ``gap.effect_settings``. ``order``: position when effects are combined (structure first,
+    then strengths, geometry, bounds, directions). Effects of one ``family`` are not combined.
+    """
+
+    name: ClassVar[str] = ""
+    family: ClassVar[str] = ""
+    order: ClassVar[int] = 50
+    description: ClassVar[str] = ""
+    source: ClassVar[str] = ""
+    defaults: ClassVar[dict] = {}
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.name:
+            EFFECTS[cls.name] = cls
+
+    def __init__(self, ctx: GapContext, **settings):
+        self.ctx = ctx
+        self.s = {**self.defaults, **dict(ctx.settings.get(self.name, {}) or {}), **settings}
+
+    # -- interface
+    def params(self) -> tuple[Param, ...]:
+        raise NotImplementedError
+
+    def applies(self) -> bool:
+        return True
+
+    def apply(self, inst: Instance, theta: np.ndarray) -> Instance:
+        raise NotImplementedError
+
+    # -- helpers
+    @property
+    def n_params(self) -> int:
+        return len(self.params())
+
+    @property
+    def neutral(self) -> np.ndarray:
+        return np.array([p.neutral for p in self.params()], float)
+
+    @property
+    def lower(self) -> np.ndarray:
+        return np.array([p.lo for p in self.params()], float)
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.array([p.hi for p in self.params()], float)
+
+    def is_neutral(self, theta: np.ndarray) -> bool:
+        return bool(np.all(np.asarray(theta, float) == self.neutral))
+
+    def clip(self, theta: np.ndarray) -> np.ndarray:
+        return np.clip(np.asarray(theta, float), self.lower, self.upper)
+
+    def grid(self, n: int) -> list[np.ndarray]:
+        """Neutral first, then a product grid (n values for one parameter, fewer per axis for more),
+        ordered by distance from neutral (relative to each parameter's range)."""
+        ps = self.params()
+        k = n if len(ps) == 1 else max(2, int(round(n ** (1.0 / len(ps)))) + 1)
+        axes = [np.unique(np.r_[np.linspace(p.lo, p.hi, k), p.neutral]) for p in ps]
+        pts = [np.array(t, float) for t in itertools.product(*axes)]
+        span = np.maximum(self.upper - self.lower, 1e-12)
+        pts.sort(key=lambda t: (float(np.linalg.norm((t - self.neutral) / span)), tuple(t)))
+        if not self.is_neutral(pts[0]):
+            pts.insert(0, self.neutral)
+        return pts
+
+    def describe(self, theta: np.ndarray) -> str:
+        return ", ".join(f"{p.name}={v:.3g}{(' ' + p.unit) if p.unit else ''}"
+                         for p, v in zip(self.params(), np.asarray(theta, float)))
+
+
+def available_effects(ctx: GapContext, names: Sequence[str] | None = None) -> list[Effect]:
+    """Instantiated effects (registry order, or the order of ``names``) that apply to ``ctx``'s model."""
+    names = list(EFFECTS) if names is None else list(names)
+    unknown = [n for n in names if n not in EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown effects {unknown}; registered: {sorted(EFFECTS)}")
+    effs = [EFFECTS[n](ctx) for n in names]
+    return [e for e in effs if e.applies()]
+
+
+def compose(ctx: GapContext, effects: Sequence[Effect], thetas: Sequence[np.ndarray],
+            base: Instance | None = None) -> Instance:
+    """Apply ``effects`` with parameters ``thetas`` to the base instance, in effect ``order``."""
+    inst = base_instance(ctx) if base is None else base
+    for e, th in sorted(zip(effects, thetas), key=lambda et: et[0].order):
+        th = np.asarray(th, float)
+        if np.any(th < e.lower - 1e-12) or np.any(th > e.upper + 1e-12):
+            raise ValueError(f"{e.name}: parameters {th} outside bounds [{e.lower}, {e.upper}]")
+        if e.is_neutral(th):
+            continue
+        inst = e.apply(inst, th)
+        inst = replace(inst, labels=inst.labels + (f"{e.name}({e.describe(th)})",))
+    return inst
+
+
+def effect_label(names: Sequence[str]) -> str:
+    """Candidate label: 'none' for the base model, effect names joined by '+' otherwise."""
+    return "+".join(names) if names else "none"
+
+
+def parse_label(label: str) -> list[str]:
+    return [] if label == "none" else label.split("+")
+
+
+# --------------------------------------------------------------------------- effects
+
+class CoContraction(Effect):
+    """Floor ``c`` on the activation of every muscle (Sec. 5.4, Appendix A.1: the measured co-activation
+    of the superficial muscles was far above the model's, which lets antagonists relax to zero).
+
+    ``alpha_lb = c``: agonists are above it anyway, antagonists are held at ``c`` and their torque has to
+    be overcome. Large floors make directions infeasible (w = 0): with s3m24 at baseline strengths a floor of
+    0.15 on all 24 groups already leaves half of the 25 directions unproducible, hence the bound."""
+
+    name = "cocontraction"
+    family = "cocontraction"
+    order = 60
+    description = "floor on every muscle's activation (antagonist co-contraction)"
+    source = "Sec. 5.4; Appendix A.1 (Figs. A.5-A.13: more co-activation than the model)"
+    defaults = {"max_floor": 0.15}
+
+    def params(self):
+        return (Param("floor", 0.0, float(self.s["max_floor"]), 0.0, "", "activation floor of every muscle"),)
+
+    def apply(self, inst, theta):
+        lb = inst.lb.copy()
+        mc = inst.muscle_cols
+        lb[:, mc] = np.maximum(lb[:, mc], theta[0])
+        return replace(inst, lb=lb, ub=np.maximum(inst.ub, lb))
+
+
+class CoContractionGroups(Effect):
+    """Separate activation floors for the EMG-recorded superficial groups (SCM, trapezius, splenius and
+    semispinalis capitis, levator scapulae; Table A.1) and for all other groups."""
+
+    name = "cocontraction_groups"
+    family = "cocontraction"
+    order = 60
+    description = "activation floors per muscle class (EMG-recorded superficial groups / others)"
+    source = "Sec. 5.4; Appendix A (Table A.1 muscles)"
+    defaults = {"max_floor_superficial": 0.4, "max_floor_other": 0.15}
+
+    def params(self):
+        return (Param("floor_superficial", 0.0, float(self.s["max_floor_superficial"]), 0.0, "",
+                      "floor of the EMG-recorded groups"),
+                Param("floor_other", 0.0, float(self.s["max_floor_other"]), 0.0, "", "floor of the other groups"))
+
+    def _superficial(self, inst: Instance) -> np.ndarray:
+        emg = set(self.ctx.emg_groups)
+        return np.array([g >= 0 and self.ctx.group_base(int(g)) in emg for g in inst.col_group])
+
+    def applies(self):
+        return bool(self.ctx.emg_groups)
+
+    def apply(self, inst, theta):
+        lb = inst.lb.copy()
+        sup = self._superficial(inst)
+        other = inst.muscle_cols & ~sup
+        lb[:, sup] = np.maximum(lb[:, sup], theta[0])
+        lb[:, other] = np.maximum(lb[:, other], theta[1])
+        return replace(inst, lb=lb, ub=np.maximum(inst.ub, lb))
+
+
+class DirectionTolerance(Effect):
+    """The measured maximum may lie off the target wrench (Appendix A): the participant matched the target
+    within 20 degrees in the moment and force unit vectors and 10% in the force-moment ratio
+    ``R_fm = |F| / (|M| + |F|)`` (Eq. A.2), and maximised the magnitude inside that window.
+
+    Model: the predicted force of a test is the largest force over candidate wrenches in a share ``s`` of
+    the window: the target, the moment direction tilted by ``s * 20`` degrees about two perpendicular axes
+    (+-), the force direction likewise, and ``R_fm`` scaled by ``1 +- s * 10%`` (11 candidates; planar
+    models: in-plane force tilt x ratio, 3 x 3 = 9 candidates). A finite inner approximation of the
+    window, so it can only underestimate the maximum over the whole window."""
+
+    name = "direction_tolerance"
+    family = "tolerance"
+    order = 90
+    description = "measured maximum = largest force inside the Appendix A direction-matching window"
+    source = "Appendix A (20 deg unit-vector error, 10% force-moment ratio error, Eq. A.2)"
+    defaults = {"angle_deg": 20.0, "ratio_rel": 0.10}
+
+    def params(self):
+        return (Param("window_share", 0.0, 1.0, 0.0, "", "share of the Appendix A window used"),)
+
+    @staticmethod
+    def _perp(v: np.ndarray, hint: np.ndarray) -> np.ndarray:
+        e = hint - np.dot(hint, v) * v
+        if np.linalg.norm(e) < 1e-9:
+            alt = np.array([1.0, 0.0, 0.0]) if abs(v[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+            e = alt - np.dot(alt, v) * v
+        return e / np.linalg.norm(e)
+
+    def candidates(self, u: np.ndarray, share: float, planar: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Candidate unit wrenches (J x 6) and force per unit wrench (J,) around unit wrench ``u``."""
+        a = np.radians(float(self.s["angle_deg"]) * share)
+        q = float(self.s["ratio_rel"]) * share
+        M, F = u[:3], u[3:]
+        m0, f0 = np.linalg.norm(M), np.linalg.norm(F)
+        Mh = M / m0 if m0 > 1e-12 else np.zeros(3)
+        Fh = F / f0
+        rfm = f0 / (m0 + f0)
+
+        def make(Mdir, Fdir, r):
+            r = float(np.clip(r, 0.0, 1.0))
+            fm, mm = r, 1.0 - r          # magnitudes with the requested ratio (overall scale irrelevant)
+            if m0 <= 1e-12:
+                mm = 0.0
+            v = np.r_[mm * Mdir, fm * Fdir]
+            nv = np.linalg.norm(v)
+            return v / nv, fm / nv
+
+        out = []
+        if planar:
+            z = np.array([0.0, 0.0, 1.0])
+            for ang in (-a, 0.0, a):
+                Fr = np.cos(ang) * Fh + np.sin(ang) * np.cross(z, Fh)
+                for r in (rfm * (1 - q), rfm, rfm * (1 + q)):
+                    out.append(make(Mh, Fr, r))
+            # put the target first
+            out.insert(0, out.pop(4))
+            return np.array([o[0] for o in out]), np.array([o[1] for o in out])
+        out.append(make(Mh, Fh, rfm))
+        if m0 > 1e-12:
+            e1 = self._perp(Mh, Fh)
+            e2 = np.cross(Mh, e1)
+            for e in (e1, -e1, e2, -e2):
+                out.append(make(np.cos(a) * Mh + np.sin(a) * e, Fh, rfm))
+        else:
+            out += [make(Mh, Fh, rfm)] * 4
+        g1 = self._perp(Fh, Mh if m0 > 1e-12 else np.array([0.0, 1.0, 0.0]))
+        g2 = np.cross(Fh, g1)
+        for g in (g1, -g1, g2, -g2):
+            out.append(make(Mh, np.cos(a) * Fh + np.sin(a) * g, rfm))
+        out.append(make(Mh, Fh, rfm * (1 - q)))
+        out.append(make(Mh, Fh, rfm * (1 + q)))
+        return np.array([o[0] for o in out]), np.array([o[1] for o in out])
+
+    def apply(self, inst, theta):
+        if inst.J != 1:
+            raise ValueError("direction_tolerance must be the last effect applied (one wrench per test)")
+        U, fm = [], []
+        for k in range(inst.U6.shape[0]):
+            c, f = self.candidates(inst.U6[k, 0], float(theta[0]), inst.planar)
+            # scale so that the target candidate reproduces the instance's force per unit wrench exactly
+            U.append(c)
+            fm.append(f * inst.fmul[k, 0] / f[0])
+        return replace(inst, U6=np.array(U), fmul=np.array(fm))
+
+
+class Kinematic(Effect):
+    """Kinematic complexity (Sec. 4.3, Fig. 4.7; Sec. 7.1.2.1): the real cervical spine has 7 joints; the
+    fitted model keeps 3 (or 2). Dropping a joint's rows is the same as giving it unlimited passive torque.
+    The effect adds the missing joints' rows (moment arms of the same muscle groups, joint axes through
+    the OpenSim joint centres) with a passive (ligament, disc, facet) torque capacity
+    ``tau = tau_ref (1 - q) / q`` per coordinate: ``q = 0`` is the fitted model, ``q = 1`` the strict
+    7-joint model (no passive help). ``q`` stops at ``max_share`` (0.9: tau >= 1.1 N m with tau_ref = 10 N m;
+    the strict 7-joint p2m7 / s3m24 models cannot produce most test directions at all)."""
+
+    name = "kinematic"
+    family = "kinematic"
+    order = 20
+    description = "7-joint spine behind the fitted model; passive torque capacity at the extra joints"
+    source = "Sec. 4.2.1.1, 4.3 (Fig. 4.7), 7.1.2.1"
+    defaults = {"tau_ref_Nm": 10.0, "max_share": 0.9}
+
+    def params(self):
+        return (Param("stiffness_share", 0.0, float(self.s["max_share"]), 0.0, "",
+                      "1 / (1 + tau / tau_ref): 0 = fitted model, 1 = strict 7-joint model"),)
+
+    def _extra(self) -> list[str]:
+        model = self.ctx.model
+        joints = KINEMATIC_VARIANTS["p7" if model.planar else "s7"][1]
+        axes = ("pitch",) if model.planar else ("pitch", "roll", "yaw")
+        return [f"{j}_{a}" for j in joints for a in axes if f"{j}_{a}" not in model.coordinates]
+
+    def applies(self):
+        return bool(self._extra())
+
+    def apply(self, inst, theta):
+        q = float(theta[0])
+        extra = self._extra()
+        idx = [COORDINATES.index(c) for c in extra]
+        full = self.ctx.full
+        R_rows = full.moment_arms[idx] @ inst.elem            # torque per unit column force at the extra joints
+        inst = _add_rows(inst, R_rows, _jt_rows(full.centres[idx], full.axes[idx], inst.planar),
+                         full.centres[idx], full.axes[idx], extra)
+        tau = float(self.s["tau_ref_Nm"]) * (1.0 - q) / q if q > 0 else np.inf
+        n_old = inst.R.shape[0] - len(extra)
+        Rc = np.zeros((inst.R.shape[0], 2 * len(extra)))
+        for i in range(len(extra)):
+            Rc[n_old + i, 2 * i] = 1.0
+            Rc[n_old + i, 2 * i + 1] = -1.0
+        names = [f"passive {c} {s}" for c in extra for s in ("+", "-")]
+        return _add_columns(inst, Rc, np.zeros((Rc.shape[1], inst.A.shape[1])), np.full(Rc.shape[1], tau), names)
+
+
+class Asymmetry(Effect):
+    """Left-right strength asymmetry for models whose left and right strengths are tied in the fit
+    (s3m24, Sec. 5.3.2.1): left groups x ``exp(a/2)``, right groups x ``exp(-a/2)`` (left/right = e^a)."""
+
+    name = "asymmetry"
+    family = "grouping"
+    order = 30
+    description = "left/right strength ratio on top of the tied sides"
+    source = "Sec. 5.3.2.1 (left = right during sampling), Sec. 7.1.2.1 (muscle grouping)"
+    defaults = {"max_log_ratio": 0.7}
+
+    def params(self):
+        m = float(self.s["max_log_ratio"])
+        return (Param("log_LR_ratio", -m, m, 0.0, "", "log(left / right strength)"),)
+
+    def applies(self):
+        return (not self.ctx.model.planar) and self.ctx.tie_sides
+
+    def apply(self, inst, theta):
+        a = float(theta[0])
+        A = inst.A.copy()
+        for c, g in enumerate(inst.col_group):
+            if g < 0:
+                continue
+            side = self.ctx.group_side(int(g))
+            if side != "both":
+                A[c] *= np.exp(a / 2) if side == "L" else np.exp(-a / 2)
+        return replace(inst, A=A)
+
+
+class FinerGroups(Effect):
+    """Finer muscle groups than the fitted model (Sec. 4.2.1.2, 7.1.2.1): a share ``kappa`` of every
+    element's strength is under independent control. Element force = ``f_i ((1 - kappa) a_g + kappa b_i)``
+    with the group activation ``a_g`` and an independent activation ``b_i``; ``kappa = 0`` is the fitted
+    grouping, ``kappa = 1`` fully independent elements (OpenSim's 96; planar: left+right pairs)."""
+
+    name = "finer_groups"
+    family = "grouping"
+    order = 10
+    description = "share of independent control of the elements inside each group"
+    source = "Sec. 4.2.1.2, 4.3 (Fig. 4.8), 7.1.2.1"
+
+    def params(self):
+        return (Param("independent_share", 0.0, 1.0, 0.0, "", "share of element strength controlled "
+                                                                "independently of its group"),)
+
+    def _units(self, inst: Instance) -> list[tuple[int, np.ndarray]]:
+        full, model = self.ctx.full, self.ctx.model
+        units = []
+        for g in range(model.m):
+            members = np.nonzero(model.S[:, g] > 0)[0]
+            members = [i for i in members if full.strengths[i] > 0]
+            if model.planar:
+                by_base: dict[str, list[int]] = {}
+                for i in members:
+                    by_base.setdefault(full.muscles["base"].iat[i], []).append(i)
+                units += [(g, np.array(v)) for v in by_base.values()]
+            else:
+                units += [(g, np.array([i])) for i in members]
+        return units
+
+    def applies(self):
+        return self.ctx.model.m < len(self._units(None))  # more units than groups
+
+    def apply(self, inst, theta):
+        kappa = float(theta[0])
+        full, model = self.ctx.full, self.ctx.model
+        units = self._units(inst)
+        if inst.R.shape[1] != model.m:
+            raise ValueError("finer_groups must be applied first (to the fitted model's columns)")
+        A = inst.A.copy()
+        A[inst.muscle_cols] *= (1.0 - kappa)
+        inst = replace(inst, A=A)
+        n_el = full.m
+        R_cols, A_rows, elem, groups, names = [], [], [], [], []
+        rows_idx = [COORDINATES.index(c) for c in model.coordinates]
+        for g, members in units:
+            fu = full.strengths[members].sum()
+            e = np.zeros(n_el)
+            e[members] = full.strengths[members] / fu
+            elem.append(e)
+            R_cols.append(full.moment_arms[rows_idx] @ e)
+            a = np.zeros(model.m)
+            a[g] = kappa * fu / model.strengths[g]
+            A_rows.append(a)
+            groups.append(g)
+            names.append(f"{model.muscle_names[g]}/{full.names[members[0]]}")
+        R_cols = np.array(R_cols).T
+        R_cols = np.vstack([R_cols, np.zeros((inst.R.shape[0] - R_cols.shape[0], R_cols.shape[1]))])
+        return _add_columns(inst, R_cols, np.array(A_rows), np.zeros(len(units)), names, np.array(groups),
+                            np.array(elem).T)
+
+
+class OriginOffset(Effect):
+    """Skull-frame origin error (Appendix A: C0-C1 estimated as 8 cm anterior and 2 cm inferior to the
+    lower posterior pad): the joints lie ``(dx, dy)`` from where the wrenches were resolved, i.e. all joint
+    centres move by ``(dx, dy, 0)`` relative to the test points. Equivalent to one common offset of all
+    test points (by ``-(dx, dy)``)."""
+
+    name = "origin_offset"
+    family = "geometry"
+    order = 70
+    description = "C0-C1 / joint centres displaced from the head-pad estimate (sagittal plane)"
+    source = "Appendix A (C0-C1 estimated from the head pad); docs/geometry.md"
+    defaults = {"max_offset_m": 0.02}
+
+    def params(self):
+        m = float(self.s["max_offset_m"])
+        return (Param("dx", -m, m, 0.0, "m", "anterior offset of the joints"),
+                Param("dy", -m, m, 0.0, "m", "superior offset of the joints"))
+
+    def apply(self, inst, theta):
+        d = np.array([theta[0], theta[1], 0.0])
+        joint = ~np.isnan(inst.row_centre[:, 0])
+        centre = inst.row_centre.copy()
+        centre[joint] = centre[joint] + d
+        JT = inst.JT.copy()
+        JT[joint] = _jt_rows(centre[joint], inst.row_axis[joint], inst.planar)
+        return replace(inst, row_centre=centre, JT=JT)
+
+
+class PointScale(Effect):
+    """Test-point location error: the test-point coordinates are reconstructions on an ellipsoidal head
+    (docs/geometry.md). All points move radially from the head-ellipsoid centre by ``(1 + s)`` (a larger
+    or smaller head), normals unchanged; unit wrenches and force scales follow."""
+
+    name = "point_scale"
+    family = "geometry_points"
+    order = 75
+    description = "test points radially farther from / closer to the head centre"
+    source = "Appendix A (Fig. A.3 test points); docs/geometry.md (reconstruction)"
+    defaults = {"max_scale": 0.15}
+
+    def params(self):
+        m = float(self.s["max_scale"])
+        return (Param("radial_scale", -m, m, 0.0, "", "relative change of the point-to-head-centre distance"),)
+
+    def apply(self, inst, theta):
+        if inst.J != 1:
+            raise ValueError("point_scale must be applied before direction_tolerance")
+        c = np.asarray(self.ctx.head_centre, float)
+        P = c + (1.0 + float(theta[0])) * (inst.P - c)
+        U, fmul = _wrench(P, inst.N)
+        return replace(inst, P=P, U6=U[:, None, :], fmul=fmul[:, None])
+
+
+class ShoulderGirdle(Effect):
+    """Trapezius and levator scapulae insert on the shoulder girdle, which the set-up did not fix (torso
+    strapped, shoulders free; Appendix A). Their pull on the head is resisted at the scapula only as far as
+    arm weight and scapular depressors hold it. Model: per side, the summed force of the shoulder-girdle
+    elements is capped by an anchor at ``(1 - s)`` times their summed strength (one LP row and one anchor
+    column per side). ``s = 0``: fixed scapula (the cap never binds). A plain strength factor would be
+    absorbed exactly by the free group strengths (trap and levscap are groups of their own in s3m24);
+    the shared cap is not, because the two muscles compete for it."""
+
+    name = "shoulder_girdle"
+    family = "shoulder"
+    order = 40
+    description = "shared anchor capacity of trapezius + levator scapulae per side (unfixed scapula)"
+    source = "Appendix A (torso strapped, shoulders free); Table A.1 (trap, levator scapulae EMG)"
+    defaults = {"max_release": 0.8}
+
+    def params(self):
+        return (Param("release", 0.0, float(self.s["max_release"]), 0.0, "",
+                      "1 - anchor capacity / summed strength of the shoulder-girdle elements"),)
+
+    def _elements(self) -> dict[str, np.ndarray]:
+        full = self.ctx.full
+        names = {n.lower() for n in self.ctx.shoulder_muscles}
+        sh = np.array([b.lower() in names for b in full.muscles["base"]])
+        if self.ctx.model.planar:
+            return {"both": sh}
+        side = full.muscles["side"].to_numpy()
+        return {"R": sh & (side == "R"), "L": sh & (side == "L")}
+
+    def applies(self):
+        inst = base_instance(self.ctx)
+        return any(np.any(mask @ inst.elem > 0) for mask in self._elements().values())
+
+    def apply(self, inst, theta):
+        s = float(theta[0])
+        for side, mask in self._elements().items():
+            coef = mask.astype(float) @ inst.elem          # element force per unit column force
+            if not np.any(coef > 0):
+                continue
+            row = np.r_[coef, 0.0]
+            # anchor column: its own coefficient -1 in the new row
+            inst = _add_columns(inst, np.zeros((inst.R.shape[0], 1)), ((1 - s) * coef @ inst.A)[None, :],
+                                np.array([(1 - s) * coef @ inst.a0]), [f"scapular anchor {side}"])
+            row[-1] = -1.0
+            inst = _add_rows(inst, row[None, :], np.zeros((1, inst.JT.shape[1])), np.full((1, 3), np.nan),
+                             np.zeros((1, 3)), [f"scapular anchor {side}"])
+        return inst

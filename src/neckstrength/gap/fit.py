@@ -1,0 +1,238 @@
+"""Fitting free strengths (for fixed effect parameters) to measured maximum forces.
+
+Loss of one problem (a data set restricted to its training directions):
+
+    L(phi) = sum_k w_k (F_k(phi) / F_meas,k - 1)^2 + ridge * |phi - phi_0|^2,    f = exp(phi)[pidx]
+
+with ``F_k`` the predicted maximum force of test k (the exact max-wrench LP, Eq. 4.1 / 5.2, solved by
+:func:`neckstrength.maxwrench.solve_max_wrench`), ``w_k`` = 1 for training and 0 for held-out directions,
+``phi`` the log free strengths (left and right tied where the Chapter 5 settings tie them) within
+``bounds_rel`` x the start, and a weak ridge towards the start ``phi_0`` (the baseline strengths scaled to
+the training forces, the analogue of Eq. 5.3) that only decides strengths the training directions leave
+undetermined. The relative residual is the quantity inside Eq. 5.5.
+
+The minimiser is Levenberg-Marquardt with forward-difference Jacobians, vectorised over many problems
+(cross-validation folds, data sets, benchmark cases) that share one model instance: each iteration is two
+calls of the batched exact solver, one with every problem's Jacobian perturbations, one with three
+damping trials per problem. The max force is piecewise linear and concave in the strengths, so the
+Gauss-Newton model is exact inside each linear piece; the damping trials handle the kinks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ..abc import free_parameters
+from ..maxwrench import STATUS_CODES, solve_max_wrench
+from .effects import GapContext, Instance
+
+__all__ = ["FitSettings", "Simulator", "FitResult", "fit_strengths", "start_point", "make_cache"]
+
+_OPT = {v: k for k, v in STATUS_CODES.items()}["optimal"]
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    max_iter: int = 30
+    ridge: float = 1e-3
+    bounds_rel: tuple[float, float] = (0.05, 20.0)
+    fd_step: float = 1e-3
+    tol: float = 1e-6
+    lambda0: float = 1e-2
+    chunk_size: int = 65536
+
+
+def make_cache(max_bases: int = 64):
+    """A basis cache for the batched solver (None when only the reference solver is available).
+
+    Few bases per direction: the fits move through a small neighbourhood, and a cache per model instance
+    is dropped with it, which bounds memory."""
+    try:
+        from ..batched import BasisCache
+    except ImportError:  # pragma: no cover
+        return None
+    return BasisCache(max_bases=max_bases, max_entries=100_000)
+
+
+class Simulator:
+    """Predicted maximum forces (N) of an :class:`Instance` for base-model strength vectors.
+
+    ``pidx`` maps model muscles to free parameters (:func:`neckstrength.abc.free_parameters`).
+    With several candidate wrenches per test (J > 1) the fit works on an *active set* of candidates
+    (initially the target; :meth:`refresh` adds every candidate that is the maximum for some strength
+    vector), so that an iteration solves few LPs (:meth:`forces_phi`, used by the fit); :meth:`run` and
+    :meth:`forces` evaluate all J unless ``active_only``.
+    """
+
+    def __init__(self, ctx: GapContext, inst: Instance, cache=None, chunk_size: int = 65536):
+        self.ctx, self.inst, self.chunk = ctx, inst, chunk_size
+        self.cache = make_cache() if cache is None else cache
+        self.model = inst.reduced(ctx.model)
+        self.U = inst.task_directions(ctx.model)
+        J = inst.J
+        self.lb = np.repeat(inst.lb, J, axis=0)
+        self.ub = np.repeat(inst.ub, J, axis=0)
+        self.fmul = inst.fmul
+        self.active = np.zeros((self.K, J), bool)
+        self.active[:, 0] = True
+        self.n_lp = 0
+        self.pidx, self.pnames = free_parameters(ctx.model, ctx.tie_sides)
+
+    @property
+    def K(self) -> int:
+        return self.inst.U6.shape[0]
+
+    def run(self, F: np.ndarray, return_alpha: bool = False, active_only: bool = False):
+        """Forces (N x K), status of the best candidate direction (N x K), its index j (N x K), and the
+        column activations there (N x K x m') when ``return_alpha``."""
+        F = np.atleast_2d(np.asarray(F, float))
+        Fa = self.inst.strengths(F)
+        N, K, J = len(F), self.K, self.inst.J
+        use = self.active if (active_only and J > 1) else np.ones((K, J), bool)
+        sel = use.ravel()
+        w_s, alpha_s, status_s = solve_max_wrench(self.model, Fa, self.U[sel], self.lb[sel], self.ub[sel],
+                                                  return_alpha=return_alpha, chunk_size=self.chunk,
+                                                  cache=self.cache)
+        self.n_lp += w_s.size
+        w = np.full((N, K * J), -1.0)
+        w[:, sel] = np.where(np.isfinite(w_s) & (status_s == _OPT), w_s, 0.0)
+        status = np.full((N, K * J), _OPT, dtype=np.int8)
+        status[:, sel] = status_s
+        w = w.reshape(N, K, J)
+        forces = np.where(w >= 0, w * self.fmul[None], -1.0)
+        j = forces.argmax(axis=2)
+        f = np.maximum(np.take_along_axis(forces, j[..., None], 2)[..., 0], 0.0)
+        st = np.take_along_axis(status.reshape(N, K, J), j[..., None], 2)[..., 0]
+        a = None
+        if return_alpha:
+            a_full = np.zeros((N, K * J, alpha_s.shape[2]))
+            a_full[:, sel] = alpha_s
+            a = a_full.reshape(N, K, J, -1)
+            a = np.take_along_axis(a, j[..., None, None], 2)[:, :, 0]
+        return f, st, j, a
+
+    def refresh(self, F: np.ndarray) -> bool:
+        """Evaluate all candidates at ``F``; add the maximising ones to the active set. True if it grew."""
+        if self.inst.J == 1:
+            return False
+        _, _, j, _ = self.run(F)
+        before = self.active.sum()
+        for k in range(self.K):
+            self.active[k, np.unique(j[:, k])] = True
+        return bool(self.active.sum() > before)
+
+    def forces(self, F: np.ndarray) -> np.ndarray:
+        return self.run(F)[0]
+
+    def muscles(self, phi: np.ndarray) -> np.ndarray:
+        """Model-muscle strengths for log free strengths ``phi`` (N x p)."""
+        return np.exp(np.atleast_2d(phi))[:, self.pidx]
+
+    def forces_phi(self, phi: np.ndarray) -> np.ndarray:
+        """Forces for log free strengths (N x p), on the active candidate set (for the fit)."""
+        return self.run(self.muscles(phi), active_only=True)[0]
+
+
+@dataclass
+class FitResult:
+    phi: np.ndarray          # (P, p) log free strengths
+    loss: np.ndarray         # (P,) weighted loss incl. ridge
+    sse: np.ndarray          # (P,) training sum of squared relative residuals (no ridge)
+    forces: np.ndarray       # (P, K) predicted forces at phi (all directions)
+    iterations: np.ndarray   # (P,)
+
+
+def start_point(sim_base: Simulator, targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Log free strengths of the baseline scaled to the training forces (geometric mean ratio; Eq. 5.3
+    uses one direction, this uses all training directions so no held-out direction enters)."""
+    m = sim_base.ctx.model
+    f_base = sim_base.forces(m.strengths[None, :])[0]
+    ok = f_base > 0
+    pidx, _ = sim_base.pidx, sim_base.pnames
+    p = int(pidx.max()) + 1
+    theta = np.log(np.bincount(pidx, weights=m.strengths, minlength=p) / np.bincount(pidx, minlength=p))
+    out = np.zeros((len(targets), p))
+    for i, (t, w) in enumerate(zip(targets, weights)):
+        sel = ok & (w > 0)
+        a = float(np.mean(np.log(t[sel] / f_base[sel]))) if sel.any() else 0.0
+        out[i] = theta + a
+    return out
+
+
+def _loss(F: np.ndarray, T: np.ndarray, W: np.ndarray, phi: np.ndarray, prior: np.ndarray, ridge: float):
+    r = F / T - 1.0
+    sse = (W * r ** 2).sum(axis=-1)
+    return sse + ridge * ((phi - prior) ** 2).sum(axis=-1), sse
+
+
+def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarray, weights: np.ndarray,
+                  phi0: np.ndarray, prior: np.ndarray, settings: FitSettings = FitSettings()) -> FitResult:
+    """Levenberg-Marquardt on the log free strengths of P problems at once.
+
+    ``fforces(phi)`` maps (N x p) log free strengths to (N x K) predicted forces; ``targets`` (P x K)
+    measured forces; ``weights`` (P x K) 1 = training direction, 0 = not used (held out);
+    ``phi0`` (P x p) start; ``prior`` (P x p) ridge centre; bounds are ``prior + log(bounds_rel)``.
+    Held-out directions enter neither the loss nor any step (their weight is 0), only the returned
+    predictions.
+    """
+    s = settings
+    T = np.asarray(targets, float)
+    W = np.asarray(weights, float)
+    prior = np.asarray(prior, float)
+    lo = prior + np.log(s.bounds_rel[0])
+    hi = prior + np.log(s.bounds_rel[1])
+    phi = np.clip(np.asarray(phi0, float).copy(), lo, hi)
+    P, p = phi.shape
+    F = fforces(phi)
+    loss, sse = _loss(F, T, W, phi, prior, s.ridge)
+    mu = np.full(P, s.lambda0)
+    stall = np.zeros(P, int)
+    iters = np.zeros(P, int)
+    active = np.ones(P, bool)
+    sw = np.sqrt(W)
+    eye = np.eye(p)
+    mults = np.array([0.1, 1.0, 10.0])
+    for _ in range(s.max_iter):
+        idx = np.nonzero(active)[0]
+        if len(idx) == 0:
+            break
+        A = len(idx)
+        ph = phi[idx]
+        hsign = np.where(ph + s.fd_step > hi[idx], -1.0, 1.0)                     # (A, p)
+        Ph = ph[:, None, :] + s.fd_step * hsign[:, None, :] * eye[None]          # (A, p, p)
+        Fh = fforces(Ph.reshape(-1, p)).reshape(A, p, -1)
+        Jr = (Fh - F[idx][:, None, :]) / (s.fd_step * hsign[:, :, None]) / T[idx][:, None, :]   # (A, p, K)
+        Jm = Jr.transpose(0, 2, 1) * sw[idx][:, :, None]                         # (A, K, p)
+        r = sw[idx] * (F[idx] / T[idx] - 1.0)
+        JTJ = np.einsum("akp,akq->apq", Jm, Jm)
+        g = np.einsum("akp,ak->ap", Jm, r) + s.ridge * (ph - prior[idx])
+        H = JTJ + s.ridge * eye[None]
+        dg = np.einsum("app->ap", JTJ)
+        steps = np.empty((A, len(mults), p))
+        for t, mt in enumerate(mults):
+            Hm = H + (mu[idx] * mt)[:, None, None] * (dg[:, :, None] * eye[None] + 1e-9 * eye[None])
+            steps[:, t] = -np.linalg.solve(Hm, g[..., None])[..., 0]
+        trial = np.clip(ph[:, None, :] + steps, lo[idx][:, None, :], hi[idx][:, None, :])
+        Ft = fforces(trial.reshape(-1, p)).reshape(A, len(mults), -1)
+        lt, st = _loss(Ft, T[idx][:, None, :], W[idx][:, None, :], trial, prior[idx][:, None, :], s.ridge)
+        best = lt.argmin(axis=1)
+        lb = lt[np.arange(A), best]
+        better = lb < loss[idx]
+        rel = np.where(better, (loss[idx] - lb) / np.maximum(loss[idx], 1e-300), 0.0)
+        for a, i in enumerate(idx):
+            iters[i] += 1
+            if better[a]:
+                phi[i] = trial[a, best[a]]
+                F[i] = Ft[a, best[a]]
+                loss[i], sse[i] = lb[a], st[a, best[a]]
+                mu[i] = max(mu[i] * mults[best[a]], 1e-12)
+                stall[i] = stall[i] + 1 if rel[a] < s.tol else 0
+            else:
+                mu[i] *= 100.0
+                stall[i] += 1
+            if stall[i] >= 3 or mu[i] > 1e8:
+                active[i] = False
+    return FitResult(phi, loss, sse, F, iters)

@@ -1,0 +1,203 @@
+"""Per-data-set gap report (markdown) and its figures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+import pandas as pd
+
+from ..plotting import PLANE_TITLES, _save, plt, radar_grid_series
+from .diagnose import DatasetDiagnosis
+
+__all__ = ["markdown_table", "write_figures", "write_report", "activation_check"]
+
+
+def markdown_table(df: pd.DataFrame, floatfmt: str = ".3g", max_rows: int | None = None) -> str:
+    """A GitHub-flavoured markdown table (no extra dependency)."""
+    if max_rows is not None:
+        df = df.head(max_rows)
+
+    def fmt(v):
+        if isinstance(v, (float, np.floating)):
+            return "" if np.isnan(v) else format(float(v), floatfmt)
+        if isinstance(v, (bool, np.bool_)):
+            return "yes" if v else "no"
+        return str(v).replace("|", "/")
+
+    cols = [str(c) for c in df.columns]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    for r in df.itertuples(index=False):
+        lines.append("| " + " | ".join(fmt(v) for v in r) + " |")
+    return "\n".join(lines)
+
+
+def activation_check(diag: DatasetDiagnosis, measured: np.ndarray | None) -> pd.DataFrame:
+    """Model vs Table A.3: one normalised activation per direction (the measured value) against the model's
+    mean activation of the EMG-recorded groups at its predicted maximum (all-direction fit), for every
+    candidate. Pearson and Spearman correlation across directions, mean levels, mean absolute difference."""
+    if measured is None:
+        return pd.DataFrame()
+    a3 = np.asarray(measured, float)
+    rows = []
+    for c, act in diag.activations.items():
+        ok = np.isfinite(act) & np.isfinite(a3)
+        if ok.sum() < 3:
+            continue
+        x, y = act[ok], a3[ok]
+        pear = float(np.corrcoef(x, y)[0, 1]) if x.std() > 0 and y.std() > 0 else np.nan
+        rx, ry = pd.Series(x).rank().to_numpy(), pd.Series(y).rank().to_numpy()
+        spear = float(np.corrcoef(rx, ry)[0, 1]) if rx.std() > 0 and ry.std() > 0 else np.nan
+        rows.append({"candidate": c, "pearson_r": pear, "spearman_rho": spear, "model_mean": x.mean(),
+                     "a3_mean": y.mean(), "mean_abs_diff": float(np.abs(x - y).mean())})
+    return pd.DataFrame(rows)
+
+
+def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping[str, str | Path],
+                  a3: np.ndarray | None = None) -> None:
+    """``out`` keys: radar, where, effects (and activation when ``a3`` is given)."""
+    r = diag.residuals.set_index("direction")
+    chosen = diag.summary["chosen"]
+    d = directions.set_index("name").loc[r.index].reset_index()
+    radar_grid_series(d, [("measured", r["measured_N"], {"color": "blue", "ls": "--"}),
+                          ("fitted model, all directions", r["fit_N"], {"color": "black", "lw": 2}),
+                          ("fitted model, held out", r["heldout_N"], {"color": "grey", "ls": ":"}),
+                          (f"{chosen}, held out", r["chosen_heldout_N"], {"color": "red", "lw": 1.5})],
+                      out["radar"], f"{diag.name} ({diag.summary['model']}): measured vs model", rlabel="N")
+    # where
+    fig, ax = plt.subplots(2, 2, figsize=(15, 10))
+    res = diag.residuals
+    x = np.arange(len(res))
+    ax[0, 0].bar(x - 0.2, res["residual"], 0.4, label="all-direction fit", color="black")
+    ax[0, 0].bar(x + 0.2, res["residual_cv"], 0.4, label="held out", color="grey")
+    bad = res["reach"] != "reachable"
+    ax[0, 0].scatter(x[bad], np.zeros(bad.sum()), marker="x", color="red", s=80, zorder=3,
+                     label="outside the reach envelope")
+    ax[0, 0].set_xticks(x)
+    ax[0, 0].set_xticklabels(res["direction"], rotation=80, fontsize=7)
+    ax[0, 0].axhline(0, color="k", lw=0.5)
+    ax[0, 0].set_ylabel("relative residual (model / measured - 1)")
+    ax[0, 0].legend(fontsize=7)
+    ax[0, 0].set_title("per direction")
+    pl = diag.planes
+    y = np.arange(len(pl))
+    ax[0, 1].barh(y - 0.2, pl["rms_residual"], 0.4, color="black", label="RMS, all-direction fit")
+    ax[0, 1].barh(y + 0.2, pl["rms_residual_cv"], 0.4, color="grey", label="RMS, held out")
+    ax[0, 1].scatter(pl["mean_residual_cv"], y, color="red", zorder=3, label="mean, held out")
+    ax[0, 1].set_yticks(y)
+    ax[0, 1].set_yticklabels([PLANE_TITLES.get(p, p) for p in pl["plane"]], fontsize=8)
+    ax[0, 1].axvline(0, color="k", lw=0.5)
+    ax[0, 1].legend(fontsize=7)
+    ax[0, 1].set_title("by plane of the 3 x 3 grid")
+    co = diag.components
+    y = np.arange(len(co))
+    ax[1, 0].barh(y - 0.2, co["rms_residual"], 0.4, color="black", label="RMS, all-direction fit")
+    ax[1, 0].barh(y + 0.2, co["rms_residual_cv"], 0.4, color="grey", label="RMS, held out")
+    ax[1, 0].scatter(co["mean_residual_cv"], y, color="red", zorder=3, label="mean, held out")
+    ax[1, 0].set_yticks(y)
+    ax[1, 0].set_yticklabels(co["component"], fontsize=8)
+    ax[1, 0].axvline(0, color="k", lw=0.5)
+    ax[1, 0].legend(fontsize=7)
+    ax[1, 0].set_title("by signed wrench component (weight: unit moment / force direction)")
+    mu = diag.muscles.dropna(subset=["mean_residual"])
+    y = np.arange(len(mu))
+    ax[1, 1].barh(y - 0.2, mu["mean_residual"], 0.4, color="black", label="mean, all-direction fit")
+    ax[1, 1].barh(y + 0.2, mu["mean_residual_cv"], 0.4, color="grey", label="mean, held out")
+    ax[1, 1].set_yticks(y)
+    ax[1, 1].set_yticklabels(mu["muscle"], fontsize=7)
+    ax[1, 1].axvline(0, color="k", lw=0.5)
+    ax[1, 1].legend(fontsize=7)
+    ax[1, 1].set_title("by active muscle group (weight: activation in the fit)")
+    fig.suptitle(f"Where the model misses: {diag.name} ({diag.summary['model']})")
+    fig.tight_layout()
+    _save(fig, out["where"])
+    # which
+    ef = diag.effects
+    fig, axe = plt.subplots(figsize=(10, 0.45 * len(ef) + 2))
+    y = np.arange(len(ef))[::-1]
+    axe.barh(y, ef["score"], color=["red" if c == chosen else ("black" if c == "none" else "grey")
+                                     for c in ef["candidate"]])
+    base = float(ef.loc[ef["candidate"] == "none", "score"].iloc[0])
+    lo = base + ef["delta_ci_low"].to_numpy()
+    hi = base + ef["delta_ci_high"].to_numpy()
+    axe.errorbar(ef["score"], y, xerr=[np.maximum(ef["score"] - lo, 0), np.maximum(hi - ef["score"], 0)],
+                 fmt="none", color="blue", capsize=3, label="90% bootstrap interval (paired with 'none')")
+    xt = float(np.nanmax(np.r_[hi, ef["score"].to_numpy()])) * 1.02
+    for yi, pb in zip(y, ef["p_best"]):
+        axe.text(xt, yi, f"P(best) {pb:.2f}", va="center", fontsize=7)
+    axe.set_xlim(0, xt * 1.15)
+    axe.set_yticks(y)
+    axe.set_yticklabels(ef["candidate"], fontsize=8)
+    axe.axvline(base, color="k", lw=0.5)
+    axe.set_xlabel(f"held-out gap 1 - D_cv + {diag.summary['penalty_per_param']} x extra parameters (lower is better)")
+    axe.legend(fontsize=7, loc="lower right")
+    axe.set_title(f"Which effect: {diag.name} ({diag.summary['model']})")
+    fig.tight_layout()
+    _save(fig, out["effects"])
+    if a3 is not None and "activation" in out:
+        fig, axa = plt.subplots(figsize=(12, 5))
+        axa.plot(x, a3, "b--o", label="Table A.3 (measured, normalised)")
+        for c, kw in (("none", {"color": "black"}), (chosen, {"color": "red"})):
+            if c in diag.activations:
+                axa.plot(x, diag.activations[c], marker="s", label=f"model ({c}): mean EMG-group activation", **kw)
+        axa.set_xticks(x)
+        axa.set_xticklabels(res["direction"], rotation=80, fontsize=7)
+        axa.set_ylim(0, 1.05)
+        axa.legend(fontsize=8)
+        axa.set_title(f"Withheld activation data vs model prediction: {diag.name}")
+        fig.tight_layout()
+        _save(fig, out["activation"])
+
+
+def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str, str], act: pd.DataFrame,
+                 settings_text: str) -> str:
+    s = diag.summary
+    ef = diag.effects.copy()
+    show = ef[["rank", "candidate", "n_params", "gap_cv", "rms_rel_cv", "score", "delta_ci_low", "delta_ci_high",
+               "p_best", "D_fit", "theta"]]
+    res = diag.residuals
+    unreach = res[res["reach"] != "reachable"][["direction", "measured_N", "fit_N", "reach_s_min", "reach_s_max",
+                                                "reach"]]
+    lines = [f"# Gap diagnosis: {s['dataset']} with model {s['model']}", "",
+             f"{s['n_directions']} test directions, {s['folds']}-fold cross-validation over directions. Gap = "
+             f"1 - D (Eq. 5.5/5.6, epsilon = {s['epsilon']}) of held-out predictions; score = gap + "
+             f"{s['penalty_per_param']} x extra parameters.", "",
+             "## Summary", "",
+             f"- **Where**: worst plane `{s['worst_plane']}`, worst wrench component `{s['worst_component']}`, "
+             f"worst held-out directions {', '.join(s['worst_directions'])}; directions outside the model's reach "
+             f"envelope (no strengths within the bounds fit them): "
+             f"{', '.join(s['unreachable']) if s['unreachable'] else 'none'}.",
+             f"- **Which**: `{s['chosen']}` ({s['chosen_theta']}), bootstrap P(best) = {s['p_best_chosen']:.2f}.",
+             f"- **How far**: held-out gap {s['gap_before']:.3f} -> {s['gap_after']:.3f}; held-out RMS relative "
+             f"residual {s['rms_before']:.3f} -> {s['rms_after']:.3f}; all-direction fit D {s['D_fit_base']:.3f} -> "
+             f"{s['D_fit_chosen']:.3f} (the thesis's D(f_c) for this kind of fit).", "",
+             "## Which effect: ranking", "", markdown_table(show), "",
+             "`delta_ci_*`: 90% bootstrap interval (directions resampled) of the score difference to `none`; "
+             "`p_best`: share of bootstrap samples in which the candidate ranks first; `D_fit`: fit on all "
+             "directions; `theta`: effect parameters of that fit.", "",
+             f"![which]({figures['effects']})", "",
+             "## Where: by plane", "", markdown_table(diag.planes.drop(columns=["directions"])), "",
+             "## Where: by wrench component", "", markdown_table(diag.components), "",
+             "## Where: by active muscle group", "", markdown_table(diag.muscles), "",
+             "## Where: reach envelope", "",
+             "`s` = log(model / measured) minus its mean over directions; the measured pattern is s = 0. A direction "
+             "is out of reach when 0 is outside [s_min, s_max] over all sampled and gradient-pushed strength "
+             "vectors within the fit bounds.", "",
+             markdown_table(unreach) if len(unreach) else "All directions are within the envelope.", "",
+             f"![where]({figures['where']})", "", f"![radar]({figures['radar']})", ""]
+    if len(act):
+        lines += ["## Withheld activation data (Table A.3)", "",
+                  "The diagnosis used forces only. Table A.3 gives one normalised activation per direction; it is "
+                  "compared with the model's mean activation of the EMG-recorded groups at its predicted maximum "
+                  "(fit on all directions) for each candidate. The LP's activations are one optimal vertex and "
+                  "need not be unique; EMG was normalised to each muscle's maximum over all trials.", "",
+                  markdown_table(act), ""]
+        if "activation" in figures:
+            lines += [f"![activation]({figures['activation']})", ""]
+    lines += ["## Per direction", "", markdown_table(res.drop(columns=["planes"])), "",
+              "## Settings", "", settings_text, ""]
+    text = "\n".join(lines)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(text, encoding="utf-8")
+    return text

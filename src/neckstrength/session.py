@@ -1,0 +1,722 @@
+"""Clinician-in-the-loop session on top of the Chapter 6 sequential estimator (Algorithms 7-9).
+
+One session = one participant, one model. At every step the program shows the proposed test direction (Eq. 6.7,
+or Eq. 6.8 with muscle priorities), the expected entropy reduction of every remaining direction (Eq. 6.6, a
+text bar chart like Fig. 6.8), the current estimate (posterior mean +- sd per muscle) and a stop
+recommendation; the clinician enters a force, measures another direction, skips, undoes or stops.
+
+Pieces:
+
+- :func:`parse_entry`      one line at the prompt -> an :class:`Entry` or an :class:`InputError` with the message
+  shown to the clinician (forces in N, ``0 < F <= MAX_PLAUSIBLE_FORCE_N``, directions known and untested,
+  activations in [0, 1]). Nothing that fails here reaches the log.
+- :class:`SessionLog`      the append-only JSON-lines log (``session.log.jsonl``); every accepted entry is written
+  and fsync'd *before* the estimate is updated; a torn last line (a kill mid-write) is dropped on resume.
+- :class:`Session`         the state machine: header (``session.json``), the candidate set (built once, cached on
+  disk by :func:`neckstrength.sequential.sim_key`), :class:`~neckstrength.sequential.SequentialState`, the
+  proposals (deterministic per set of tested directions, so undo, resume and replay give the same numbers).
+- :func:`run_interactive`, :func:`replay_csv`  the prompt loop and the non-interactive replay of a CSV of
+  measurements through the same code path.
+
+Choices the thesis does not make (docs/session.md): the prior is ``N(a f'_base, (0.3 a f'_base)^2)`` with ``a`` a
+session option (default 1) because Sec. 6.5.1's ``a`` needs every measurement up front; the stop recommendation
+is the prospective criterion of :func:`~neckstrength.sequential.stop_by_expected_gain` (best Eq. 6.7/6.8 score
+below ``gain_frac`` of the first step's; config ``chapter6.stop.gain_frac``).
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import os
+import re
+import sys
+import threading
+import time
+import zlib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from .io import MAX_PLAUSIBLE_FORCE_N
+from .sequential import (Proposal, SequentialSettings, SequentialState, SimulatedSet, StrengthGrid, pdf_entropy,
+                         sample_prior, sim_key)
+
+__all__ = ["Entry", "InputError", "parse_entry", "parse_force", "parse_activations", "SessionLog", "Session",
+           "SessionOptions", "bar_chart", "run_interactive", "replay_csv", "where_to_push", "read_measurements_csv"]
+
+HEADER = "session.json"
+LOG = "session.log.jsonl"
+MODELS = ("p2m7", "s3m24", "p3m12")
+HELP = """Commands:
+  <force>                          force in N for the proposed direction, e.g. 142 or 142 N
+  <force> act=MUSCLE:VALUE,...     the same with EMG activations in [0, 1], e.g. 142 act=TS-B:0.4,TS-E:0.7
+  measure <direction> <force> [act=MUSCLE:VALUE,...]   a force for another (untested) direction
+  skip                             do not test the proposed direction now (it is proposed no more)
+  undo                             remove the last measurement or skip
+  stop                             finish: write summary.csv and summary.png
+  help                             this text
+Forces are in newtons, 0 < F <= {max:g} N. Ctrl-D pauses (resume with `neckstrength session resume --out DIR`)."""
+
+
+# --------------------------------------------------------------------------- input parsing and validation
+
+class InputError(ValueError):
+    """A rejected line at the prompt; ``str(exc)`` is the message shown before the re-prompt."""
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One parsed command: ``kind`` in measure, skip, undo, stop, help."""
+
+    kind: str
+    direction: str | None = None
+    force: float | None = None
+    activations: dict | None = None
+
+
+_UNITS_OTHER = {"kn": "kN", "mn": "mN", "nm": "N m", "n.m": "N m", "n*m": "N m", "n-m": "N m", "n·m": "N m",
+                "lb": "lb", "lbs": "lb", "lbf": "lbf", "kg": "kg", "kgf": "kgf", "g": "g", "dan": "daN", "%": "%"}
+_NUM = r"[-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?"
+
+
+def parse_force(text: str) -> float:
+    """A force in newtons from ``'142'``, ``'142 N'`` or ``'142N'``; every other unit and value is rejected."""
+    t = text.strip()
+    if not t:
+        raise InputError("no force given: enter the measured force in N, e.g. 142")
+    m = re.fullmatch(rf"({_NUM})\s*([^\d\s].*)?", t)
+    if m is None:
+        raise InputError(f"'{t}' is not a number: enter the measured force in N, e.g. 142 (type 'help' for commands)")
+    unit = (m.group(2) or "").strip()
+    if unit and unit not in ("N", "n", "newton", "newtons"):
+        known = _UNITS_OTHER.get(unit.lower().replace(" ", ""))
+        what = f"'{known}'" if known else f"'{unit}'"
+        extra = " (a moment, not a force)" if known == "N m" else ""
+        raise InputError(f"wrong unit {what}{extra}: enter the force in newtons (N), e.g. 142 or 142 N")
+    f = float(m.group(1))
+    if not np.isfinite(f):
+        raise InputError(f"'{t}' is not a finite number")
+    if f < 0:
+        raise InputError(f"force {f:g} N is negative: enter the magnitude of the measured force (> 0 N)")
+    if f == 0:
+        raise InputError("force 0 N: a maximum-effort test gives a positive force; use 'skip' if it could not be done")
+    if f > MAX_PLAUSIBLE_FORCE_N:
+        raise InputError(f"force {f:g} N is implausibly large (bound {MAX_PLAUSIBLE_FORCE_N:g} N): check the "
+                         f"reading and its unit")
+    return f
+
+
+def parse_activations(text: str, muscles: Sequence[str]) -> dict:
+    """``'act=TS-B:0.4,TS-E:0.7'`` -> {muscle: activation}; names must be model muscles, values in [0, 1]."""
+    body = text.strip()
+    if not body.lower().startswith("act="):
+        raise InputError(f"unexpected '{body}': activations are written act=MUSCLE:VALUE,... (type 'help')")
+    body = body[4:]
+    out: dict[str, float] = {}
+    for item in filter(None, (x.strip() for x in body.split(","))):
+        name, sep, val = item.rpartition(":")
+        if not sep or not name:
+            raise InputError(f"activation '{item}' is not MUSCLE:VALUE (e.g. {muscles[0]}:0.4)")
+        name = name.strip()
+        if name not in muscles:
+            close = difflib.get_close_matches(name, muscles, n=1)
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            raise InputError(f"unknown muscle '{name}'{hint}; muscles: {', '.join(muscles)}")
+        try:
+            a = float(val)
+        except ValueError:
+            raise InputError(f"activation '{val.strip()}' of {name} is not a number in [0, 1]") from None
+        if not np.isfinite(a) or a < 0 or a > 1:
+            raise InputError(f"activation {val.strip()} of {name} is outside [0, 1] (a fraction of maximum, not %)")
+        if name in out:
+            raise InputError(f"activation of {name} given twice")
+        out[name] = a
+    if not out:
+        raise InputError("act= needs at least one MUSCLE:VALUE")
+    return out
+
+
+def _check_direction(name: str, directions: Sequence[str], tested: Sequence[str]) -> str:
+    if name not in directions:
+        low = {d.lower(): d for d in directions}
+        if name.lower() in low:
+            return _check_direction(low[name.lower()], directions, tested)
+        close = difflib.get_close_matches(name, directions, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        raise InputError(f"unknown direction '{name}'{hint}; directions: {', '.join(directions)}")
+    if name in tested:
+        raise InputError(f"direction '{name}' has already been tested (each direction is tested once; 'undo' "
+                         f"removes the last entry)")
+    return name
+
+
+def parse_entry(line: str, proposed: str | None, directions: Sequence[str], tested: Sequence[str],
+                muscles: Sequence[str]) -> Entry:
+    """One prompt line -> :class:`Entry`; :class:`InputError` (with the message to show) when invalid."""
+    t = line.strip()
+    if not t:
+        raise InputError("empty input: enter a force in N, or a command (help)")
+    word, _, rest = t.partition(" ")
+    w = word.lower()
+    if w in ("help", "?", "h"):
+        return Entry("help")
+    if w in ("skip", "undo", "stop"):
+        if rest.strip():
+            raise InputError(f"'{w}' takes no arguments")
+        if w == "skip" and proposed is None:
+            raise InputError("nothing to skip: no direction is proposed")
+        return Entry(w, direction=proposed if w == "skip" else None)
+    if w in ("measure", "m"):
+        parts = rest.split(None, 1)
+        if not parts:
+            raise InputError("measure needs a direction and a force: measure <direction> <force> [act=...]")
+        d = _check_direction(parts[0], directions, tested)
+        if len(parts) < 2:
+            raise InputError(f"measure {d}: the force is missing (measure {d} <force in N>)")
+        force_txt, act = _split_act(parts[1])
+        return Entry("measure", d, parse_force(force_txt), parse_activations(act, muscles) if act else None)
+    if w in [d.lower() for d in directions] and rest.strip():
+        raise InputError(f"to measure another direction write: measure {word} {rest.strip()}")
+    # a force (with optional activations) for the proposed direction
+    force_txt, act = _split_act(t)
+    if proposed is None:
+        parse_force(force_txt)
+        raise InputError("no direction is proposed: use measure <direction> <force>, undo or stop")
+    return Entry("measure", proposed, parse_force(force_txt), parse_activations(act, muscles) if act else None)
+
+
+def _split_act(text: str) -> tuple[str, str | None]:
+    i = text.lower().find("act=")
+    if i < 0:
+        return text.strip(), None
+    return text[:i].strip(), text[i:].strip()
+
+
+# --------------------------------------------------------------------------- the log
+
+class SessionLog:
+    """Append-only JSON lines; each record is flushed and fsync'd before :meth:`append` returns."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+
+    def read(self) -> list[dict]:
+        """Records on disk; a torn last line (killed mid-write, never acknowledged) is removed from the file."""
+        if not self.path.exists():
+            return []
+        raw = self.path.read_bytes()
+        lines = raw.split(b"\n")
+        out, good = [], 0
+        for k, ln in enumerate(lines):
+            if not ln.strip():
+                continue
+            try:
+                out.append(json.loads(ln))
+                good += len(ln) + 1
+            except json.JSONDecodeError:
+                if k < len(lines) - 1 and any(x.strip() for x in lines[k + 1:]):
+                    raise ValueError(f"{self.path}: line {k + 1} is corrupt") from None
+                with open(self.path, "r+b") as fh:       # torn tail: drop it
+                    fh.truncate(good)
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                break
+        return out
+
+    def append(self, record: dict) -> None:
+        line = (json.dumps(record, sort_keys=True) + "\n").encode()
+        with open(self.path, "ab") as fh:
+            fh.write(line)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+
+def effective_entries(records: Sequence[dict]) -> list[dict]:
+    """The measure/skip records still in force after the undos (in order)."""
+    stack: list[dict] = []
+    for r in records:
+        if r["action"] in ("measure", "skip"):
+            stack.append(r)
+        elif r["action"] == "undo" and stack:
+            stack.pop()
+    return stack
+
+
+# --------------------------------------------------------------------------- display helpers
+
+def bar_chart(labels: Sequence[str], values: Sequence[float], width: int = 30, mark: str | None = None,
+              marks: Mapping[str, str] | None = None) -> str:
+    """Compact horizontal text bars (Fig. 6.8 as text): one line per label, scaled to the largest value."""
+    vals = np.asarray(values, float)
+    top = max(float(np.nanmax(vals)), 1e-12) if len(vals) else 1.0
+    lw = max((len(x) for x in labels), default=0)
+    lines = []
+    blocks = " ▏▎▍▌▋▊▉█"
+    for lab, v in zip(labels, vals):
+        x = max(v, 0.0) / top * width
+        full = int(x)
+        part = blocks[int(round((x - full) * 8))] if full < width else ""
+        bar = ("█" * full + part.strip()).ljust(width)
+        note = (marks or {}).get(lab, "")
+        if lab == mark:
+            note = ("<- proposed " + note).strip()
+        lines.append(f"  {lab:<{lw}} {bar} {v:7.3f}  {note}".rstrip())
+    return "\n".join(lines)
+
+
+def _normal_words(n: np.ndarray) -> str:
+    words = []
+    for comp, pos, neg in ((n[0], "forward", "backward"), (n[1], "up", "down"), (n[2], "to the right", "to the left")):
+        if abs(comp) >= 0.3:
+            words.append(pos if comp > 0 else neg)
+    return " and ".join(words) or "along the normal"
+
+
+def where_to_push(directions: pd.DataFrame, spec_csv: str | Path | None) -> dict[str, str]:
+    """Direction name -> where the pad sits on the head and which way the head pushes (outward normal)."""
+    spec = {}
+    if spec_csv and Path(spec_csv).exists():
+        s = pd.read_csv(spec_csv, comment="#")
+        spec = {r["name"]: (r.get("mirror_of"), r.get("rationale")) for r in s.to_dict("records")}
+    out = {}
+    for r in directions.to_dict("records"):
+        name = r["name"]
+        mirror, why = spec.get(name, (None, None))
+        if isinstance(mirror, str) and mirror:
+            why = spec.get(mirror, (None, ""))[1]
+            why = f"as {mirror} on the left side: {why}" if isinstance(why, str) else f"mirror of {mirror}"
+        n = np.array([r["nx"], r["ny"], r["nz"]], float)
+        side = f"point ({r['px']:.3f}, {r['py']:.3f}, {r['pz']:.3f}) m in the skull frame"
+        where = why if isinstance(why, str) and why else side
+        out[name] = f"{where}; the head pushes {_normal_words(n)} against the pad"
+    return out
+
+
+# --------------------------------------------------------------------------- the session
+
+@dataclass
+class SessionOptions:
+    """Everything that fixes a session's numbers (written to ``session.json``)."""
+
+    model: str = "p2m7"
+    participant: str = "anonymous"
+    priorities: dict = field(default_factory=dict)     # Eq. 6.8 gamma {muscle: weight}; empty = Eq. 6.7
+    config: str = "config/config.yaml"
+    n_candidates: int | None = None                     # None = config chapter6.n_candidates (per model)
+    prior_scale: float = 1.0                            # a in f_0 = a f'_base
+    gain_frac: float | None = None                      # None = config chapter6.stop.gain_frac
+    cache: str | None = None                            # candidate-set cache folder
+    seed: int | None = None                             # None = config seed
+
+
+class Session:
+    """One participant's session in folder ``out`` (header, log, outputs)."""
+
+    def __init__(self, out: str | Path, opts: SessionOptions, progress: Callable[[str], None] = print):
+        from .cli import load_config
+        from .datasets import model_directions_table
+        from .stages import build_directions, full_model_from_config, model_from_config
+        from .stages_sequential import chapter6_settings
+
+        self.out = Path(out)
+        self.opts = opts
+        self.progress = progress
+        cfg = load_config(opts.config)
+        self.cfg = cfg
+        self.model = model_from_config(full_model_from_config(cfg), cfg, opts.model)
+        self.muscles = list(self.model.muscle_names)
+        unknown = set(opts.priorities) - set(self.muscles)
+        if unknown:
+            raise ValueError(f"priorities for unknown muscles {sorted(unknown)}; muscles of {opts.model}: "
+                             f"{', '.join(self.muscles)}")
+        over = {} if opts.n_candidates is None else {"n_candidates": int(opts.n_candidates)}
+        self.settings: SequentialSettings = chapter6_settings(cfg, opts.model, **over)
+        d, U = model_directions_table(self.model, build_directions(cfg))
+        self.dirtable = d
+        self.directions = list(d["name"])
+        self.push = where_to_push(d, cfg.get("geometry", {}).get("test_point_spec"))
+        self.gamma = (np.array([float(opts.priorities.get(n, 0.0)) for n in self.muscles])
+                      if opts.priorities else None)
+        self.gain_frac = (float(opts.gain_frac) if opts.gain_frac is not None
+                          else float(cfg["chapter6"].get("stop", {}).get("gain_frac", 0.2)))
+        self.seed = int(cfg["seed"] if opts.seed is None else opts.seed)
+        s = self.settings
+        self.f0 = float(opts.prior_scale) * self.model.strengths
+        ss = np.random.SeedSequence([self.seed, zlib.crc32(f"session/{opts.model}".encode())])
+        F = sample_prior(self.f0, s.prior_sd_rel, s.n_candidates, np.random.default_rng(ss))
+        grid = StrengthGrid.around(self.f0, s.prior_sd_rel, s.n_bins, s.bin_range_sd)
+        self.key = sim_key(SimpleNamespace(F=F, U=U, grid=grid, iw=np.ones(len(F))))
+        cache_dir = Path(opts.cache) if opts.cache else Path("results") / "session_cache"
+        self.cache_path = cache_dir / f"{opts.model}_N{s.n_candidates}_{s.n_wbins}w_{s.n_bins}b_{self.key}.npz"
+        self.sim = self._candidate_set(U, F, grid)
+        self.state = SequentialState(self.model, self.sim, d["force_scale"].to_numpy(float), s, seed=self.seed)
+        self.skipped: list[str] = []
+        self.entries: list[dict] = []          # effective measure/skip records, in order
+        self._proposals: dict[tuple, Proposal] = {}
+        self.log = SessionLog(self.out / LOG)
+        self._seq = 0
+
+    # -- candidate set: built once, cached on disk by its key
+    def _candidate_set(self, U, F, grid) -> SimulatedSet:
+        if self.cache_path.exists():
+            try:
+                sim = SimulatedSet.load(self.cache_path)
+                if sim_key(sim) == self.key:
+                    self.progress(f"candidate set: {sim.N} candidates x {sim.K} directions loaded from {self.cache_path}")
+                    return sim
+                self.progress(f"candidate set cache {self.cache_path} has another key; rebuilding")
+            except Exception as exc:    # unreadable cache (e.g. killed while saving): rebuild
+                self.progress(f"candidate set cache {self.cache_path} unreadable ({exc}); rebuilding")
+        N, K = F.shape[0], U.shape[0]
+        self.progress(f"building the candidate set once: {N} candidates x {K} directions ({self.model.name}) ...")
+        done = threading.Event()
+        t0 = time.time()
+
+        def tick():
+            while not done.wait(5.0):
+                self.progress(f"  ... still building ({time.time() - t0:.0f} s)")
+
+        th = threading.Thread(target=tick, daemon=True)
+        th.start()
+        try:
+            sim, = SimulatedSet.build(self.model, self.directions, U, F, [grid], self.settings.n_wbins,
+                                      progress=lambda s: self.progress("  " + s))
+        finally:
+            done.set()
+            th.join()
+        sim.save(self.cache_path)
+        self.progress(f"  built in {time.time() - t0:.1f} s; cached in {self.cache_path}")
+        return sim
+
+    # -- header
+    def header(self) -> dict:
+        return {"format": "neckstrength-session/1", "options": asdict(self.opts), "seed": self.seed,
+                "settings": asdict(self.settings), "sim_key": self.key, "directions": self.directions,
+                "muscles": self.muscles, "gain_frac": self.gain_frac}
+
+    @classmethod
+    def start(cls, out: str | Path, opts: SessionOptions, progress=print) -> "Session":
+        out = Path(out)
+        if (out / LOG).exists() or (out / HEADER).exists():
+            raise FileExistsError(f"{out} already holds a session; use `neckstrength session resume --out {out}`")
+        out.mkdir(parents=True, exist_ok=True)
+        s = cls(out, opts, progress)
+        tmp = out / (HEADER + ".tmp")
+        tmp.write_text(json.dumps(s.header(), indent=2, sort_keys=True))
+        os.replace(tmp, out / HEADER)
+        return s
+
+    @classmethod
+    def resume(cls, out: str | Path, progress=print) -> "Session":
+        out = Path(out)
+        if not (out / HEADER).exists():
+            raise FileNotFoundError(f"{out}: no {HEADER}; start a session with `neckstrength session start`")
+        h = json.loads((out / HEADER).read_text())
+        s = cls(out, SessionOptions(**h["options"]), progress)
+        if s.key != h["sim_key"]:
+            raise ValueError(f"{out}: the candidate set differs from the one the session started with (key "
+                             f"{h['sim_key']}, now {s.key}); the config or the package changed")
+        recs = s.log.read()
+        s._seq = max((int(r.get("seq", 0)) for r in recs), default=0)
+        for r in effective_entries(recs):
+            s._apply(r)
+        n_meas = sum(r["action"] == "measure" for r in s.entries)
+        progress(f"resumed {out}: {len(recs)} log records replayed; {n_meas} measurements "
+                 f"({', '.join(s.state.tested) or 'none'}), skipped: {', '.join(s.skipped) or 'none'}")
+        return s
+
+    # -- state changes (log first, then the estimate)
+    def _apply(self, r: dict) -> None:
+        if r["action"] == "measure":
+            step = self.state.likelihood(r["direction"], r["force_N"], r.get("activations"))
+            self.state.steps.append(step)
+            if r["direction"] in self.skipped:
+                self.skipped.remove(r["direction"])
+        elif r["action"] == "skip":
+            self.skipped.append(r["direction"])
+        self.entries.append(r)
+
+    def _unapply(self) -> dict:
+        r = self.entries.pop()
+        if r["action"] == "measure":
+            self.state.undo()
+        else:
+            self.skipped.remove(r["direction"])
+        return r
+
+    def accept(self, e: Entry) -> str:
+        """Apply a validated entry: log (fsync'd) first, then update the estimate. Returns a one-line echo."""
+        if e.kind == "measure":
+            _check_direction(e.direction, self.directions, self.state.tested)
+            # Algorithm 8 first (nothing changes yet), so that a failing computation never reaches the log
+            step = self.state.likelihood(e.direction, e.force, e.activations)
+            rec = {"action": "measure", "direction": e.direction, "force_N": e.force, "activations": e.activations}
+            self.log.append(self._stamp(rec))
+            self.state.steps.append(step)
+            if e.direction in self.skipped:
+                self.skipped.remove(e.direction)
+            self.entries.append(rec)
+            act = "" if not e.activations else " with activations " + ", ".join(
+                f"{k} {v:g}" for k, v in e.activations.items())
+            return f"recorded {e.direction}: {e.force:g} N{act}"
+        if e.kind == "skip":
+            rec = {"action": "skip", "direction": e.direction}
+            self.log.append(self._stamp(rec))
+            self.skipped.append(e.direction)
+            self.entries.append(rec)
+            return f"skipped {e.direction} (not proposed again; 'measure {e.direction} <force>' still records it)"
+        if e.kind == "undo":
+            if not self.entries:
+                raise InputError("nothing to undo")
+            self.log.append(self._stamp({"action": "undo"}))
+            r = self._unapply()
+            what = f"measurement {r['direction']} ({r['force_N']:g} N)" if r["action"] == "measure" else \
+                f"skip of {r['direction']}"
+            return f"undone: {what}"
+        if e.kind == "stop":
+            self.log.append(self._stamp({"action": "stop"}))
+            return "stopped"
+        raise ValueError(e.kind)
+
+    def _stamp(self, rec: dict) -> dict:
+        self._seq += 1
+        return {"seq": self._seq, "time": time.strftime("%Y-%m-%dT%H:%M:%S"), **rec}
+
+    # -- proposals (deterministic per set of tested directions)
+    def proposal(self) -> Proposal | None:
+        if not self.state.remaining:
+            return None
+        key = tuple(sorted(self.state.tested))
+        if key not in self._proposals:
+            rng = np.random.default_rng([self.seed, zlib.crc32(";".join(key).encode()), 6])
+            self._proposals[key] = self.state.propose(rng, self.gamma)
+        return self._proposals[key]
+
+    def first_score(self) -> float:
+        if () not in self._proposals:
+            rng = np.random.default_rng([self.seed, zlib.crc32(b""), 6])
+            self._proposals[()] = SequentialState(self.model, self.sim, self.state.force_scale,
+                                                  self.settings).propose(rng, self.gamma)
+        return float(self._proposals[()].table()["score"].max())
+
+    def choice(self, p: Proposal | None) -> str | None:
+        """The best remaining direction that has not been skipped (Eq. 6.7/6.8 score)."""
+        if p is None:
+            return None
+        t = p.table()
+        t = t[~t["direction"].isin(self.skipped)]
+        return None if t.empty else str(t.loc[t["score"].idxmax(), "direction"])
+
+    def recommendation(self, p: Proposal | None) -> tuple[bool, str]:
+        crit = (f"criterion: best expected entropy reduction (Eq. 6.7{'/6.8' if self.gamma is not None else ''} "
+                f"score) below {self.gain_frac:.0%} of the first step's")
+        if p is None:
+            return True, "STOP: every direction has been tested"
+        best_dir = self.choice(p)
+        if best_dir is None:
+            return True, "STOP: every remaining direction has been skipped (measure one explicitly, undo, or stop)"
+        t = p.table().set_index("direction")
+        best, first = float(t.loc[best_dir, "score"]), self.first_score()
+        ratio = best / first if first > 0 else 0.0
+        if not self.state.tested:
+            return False, f"continue: no measurement yet ({crit})"
+        if ratio < self.gain_frac:
+            return True, (f"STOP recommended: best expected reduction {best:.3f} nats is {ratio:.0%} of the first "
+                          f"step's {first:.3f} ({crit})")
+        return False, (f"continue: best expected reduction {best:.3f} nats is {ratio:.0%} of the first step's "
+                       f"{first:.3f} ({crit})")
+
+    def estimate(self) -> pd.DataFrame:
+        e = self.state.estimate()
+        e.insert(1, "f_0", self.f0)
+        e.insert(2, "sd_0", self.settings.prior_sd_rel * self.f0)
+        return e
+
+    # -- display
+    def render(self) -> str:
+        p = self.proposal()
+        prop = self.choice(p)
+        n_t = len(self.state.tested)
+        lines = [f"=== step {n_t + 1} · participant {self.opts.participant} · model {self.model.name} · "
+                 f"{n_t} of {len(self.directions)} directions tested"
+                 + (f" ({', '.join(self.state.tested)})" if n_t else "") + " ==="]
+        if prop is not None:
+            lines.append(f"Proposed: {prop}  -- {self.push.get(prop, '')}")
+        if p is not None:
+            t = p.table()
+            g = "Eq. 6.8 with priorities" if self.gamma is not None else "Eq. 6.7, mean over muscles"
+            lines.append(f"Expected entropy reduction of each remaining direction (Eq. 6.6; score {g}; nats):")
+            marks = {d: "(skipped)" for d in self.skipped}
+            order = t.sort_values("score", ascending=False, kind="stable")
+            lines.append(bar_chart(list(order["direction"]), list(order["score"]), mark=prop, marks=marks))
+        e = self.estimate()
+        lines.append("Current estimate (posterior mean ± sd, N; prior in brackets):")
+        lw = max(len(m) for m in self.muscles)
+        for r in e.to_dict("records"):
+            lines.append(f"  {r['muscle']:<{lw}} {r['f_c']:8.1f} ± {r['sd_c']:6.1f}   "
+                         f"[{r['f_0']:7.1f} ± {r['sd_0']:6.1f}]")
+        lines.append(self.recommendation(p)[1])
+        return "\n".join(lines)
+
+    def prompt(self) -> str:
+        prop = self.choice(self.proposal())
+        return f"force (N) for {prop}, or a command [help]> " if prop else "command (measure/undo/stop/help)> "
+
+    # -- outputs
+    def write_summary(self) -> tuple[Path, Path]:
+        """``summary.csv`` (estimate per muscle) and ``summary.png``; also ``steps.csv`` and ``measurements.csv``
+        (the measurements in order, in the format :func:`replay_csv` reads)."""
+        from .stages import atomic_write_csv
+
+        e = self.estimate()
+        hdr = [f"clinician session: participant {self.opts.participant}, model {self.model.name}, "
+               f"{len(self.state.tested)} of {len(self.directions)} directions: {', '.join(self.state.tested)}",
+               f"N_F {self.settings.n_candidates}, N_S {self.settings.n_sim}, bins {self.settings.n_bins}; prior f_0 = "
+               f"{self.opts.prior_scale:g} f'_base, sd 0.3 f_0; seed {self.seed}; candidate key {self.key}",
+               "f_c = posterior mean, sd_c = posterior sd (N); entropy in nats (Eq. 6.3)"]
+        atomic_write_csv(e, self.out / "summary.csv", hdr, float_format="%.6g")
+        # per-step trajectory (iteration 0 = prior)
+        rows = []
+        steps = list(self.state.steps)
+        cum = np.zeros_like(self.state.log_prior)
+        from .sequential import pdf_moments, posterior_from_loglik
+        for t in range(len(steps) + 1):
+            if t:
+                cum = cum + steps[t - 1].loglik
+            pdf = posterior_from_loglik(self.state.log_prior, cum)
+            E, V = pdf_moments(pdf, self.sim.grid)
+            H = pdf_entropy(pdf, self.sim.grid)
+            for j, m in enumerate(self.muscles):
+                rows.append({"step": t, "direction": steps[t - 1].direction if t else "",
+                             "force_N": steps[t - 1].force if t else np.nan, "muscle": m, "f_c": E[j],
+                             "sd_c": np.sqrt(V[j]), "entropy": H[j]})
+        traj = pd.DataFrame(rows)
+        atomic_write_csv(traj, self.out / "steps.csv", hdr[:2], float_format="%.6g")
+        meas = [r for r in self.entries if r["action"] == "measure"]
+        mdf = pd.DataFrame({"direction": [r["direction"] for r in meas], "force_N": [r["force_N"] for r in meas],
+                            "activations": [",".join(f"{k}:{v:g}" for k, v in (r.get("activations") or {}).items())
+                                            for r in meas]})
+        atomic_write_csv(mdf, self.out / "measurements.csv", [f"measurements of session {self.out.name} "
+                                                              "(replay: neckstrength session replay --csv ...)"])
+        png = self.out / "summary.png"
+        _summary_figure(traj, e, png, f"{self.opts.participant} · {self.model.name}")
+        return self.out / "summary.csv", png
+
+
+def _summary_figure(traj: pd.DataFrame, est: pd.DataFrame, path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [2, 1]})
+    x = np.arange(len(est))
+    ax[0].errorbar(x - 0.12, est["f_0"], yerr=est["sd_0"], fmt="o", color="0.6", label="prior f_0 ± sd")
+    ax[0].errorbar(x + 0.12, est["f_c"], yerr=est["sd_c"], fmt="o", color="C0", label="estimate f_c ± sd")
+    ax[0].set_xticks(x, est["muscle"], rotation=60 if len(x) > 10 else 0, fontsize=8)
+    ax[0].set_ylabel("strength (N)")
+    ax[0].legend(fontsize=8)
+    h = traj.groupby("step")["entropy"].mean()
+    labels = traj.drop_duplicates("step")["direction"].tolist()
+    ax[1].plot(h.index, h.values, "o-")
+    ax[1].set_xticks(h.index, ["prior"] + labels[1:], rotation=60, fontsize=8)
+    ax[1].set_ylabel("mean posterior entropy (nats)")
+    fig.suptitle(f"Clinician session: {title}")
+    fig.tight_layout()
+    tmp = path.with_name(path.name + ".tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+# --------------------------------------------------------------------------- drivers
+
+def run_interactive(session: Session, input_fn: Callable[[str], str] = input, out=sys.stdout) -> int:
+    """The prompt loop. Returns 0 on stop, 3 when paused (end of input)."""
+    def say(s=""):
+        print(s, file=out, flush=True)
+
+    say(session.render())
+    while True:
+        try:
+            line = input_fn(session.prompt())
+        except EOFError:
+            say("")
+            say(f"paused: the log is on disk; resume with `neckstrength session resume --out {session.out}`")
+            return 3
+        try:
+            e = parse_entry(line, session.choice(session.proposal()), session.directions, session.state.tested,
+                            session.muscles)
+            if e.kind == "help":
+                say(HELP.format(max=MAX_PLAUSIBLE_FORCE_N))
+                continue
+            msg = session.accept(e)
+        except InputError as exc:
+            say(f"invalid: {exc}")
+            continue
+        say(msg)
+        if e.kind == "stop":
+            csv, png = session.write_summary()
+            say(_final_table(session))
+            say(f"wrote {csv} and {png}")
+            return 0
+        say(session.render())
+
+
+def _final_table(session: Session) -> str:
+    e = session.estimate()
+    cols = ["muscle", "f_0", "f_c", "sd_c", "entropy"]
+    return ("Final estimate (" + (", ".join(session.state.tested) or "no measurements") + "):\n"
+            + e[cols].to_string(index=False, float_format=lambda v: f"{v:.1f}"))
+
+
+def read_measurements_csv(path: str | Path) -> pd.DataFrame:
+    df = pd.read_csv(path, comment="#", dtype=str, keep_default_na=False)
+    miss = {"direction", "force_N"} - set(df.columns)
+    if miss:
+        raise InputError(f"{path}: missing columns {sorted(miss)} (needs direction, force_N[, activations])")
+    return df
+
+
+def replay_csv(session: Session, csv: str | Path, out=sys.stdout) -> int:
+    """Drive ``session`` from a CSV of measurements (direction, force_N[, activations]) through the same
+    validation, log and update as the prompt; then stop and write the summary."""
+    df = read_measurements_csv(csv)
+    entries, tested = [], list(session.state.tested)
+    for k, r in enumerate(df.to_dict("records"), start=2):      # validate every row before logging any
+        act = (r.get("activations") or "").strip()
+        line = f"measure {r['direction'].strip()} {r['force_N'].strip()}" + (f" act={act}" if act else "")
+        try:
+            e = parse_entry(line, None, session.directions, tested, session.muscles)
+        except InputError as exc:
+            raise InputError(f"{csv}, row {k}: {exc}") from None
+        entries.append(e)
+        tested.append(e.direction)
+    for e in entries:
+        p = session.proposal()
+        print(f"step {len(session.state.tested) + 1}: proposed {session.choice(p)}; "
+              f"{session.accept(e)}", file=out, flush=True)
+    session.accept(Entry("stop"))
+    csvp, png = session.write_summary()
+    print(_final_table(session), file=out)
+    print(f"wrote {csvp} and {png}", file=out, flush=True)
+    return 0
+
+
+def parse_priorities(items: Sequence[str] | None) -> dict:
+    """``['TS-E=2', 'CS-F=0.5']`` -> {muscle: weight} (Eq. 6.8's gamma; unlisted muscles weigh 0)."""
+    out = {}
+    for it in items or []:
+        name, sep, val = it.partition("=")
+        if not sep:
+            raise ValueError(f"--priority {it!r}: expected MUSCLE=WEIGHT")
+        w = float(val)
+        if not np.isfinite(w) or w < 0:
+            raise ValueError(f"--priority {it!r}: the weight must be >= 0")
+        out[name.strip()] = w
+    return out

@@ -1,0 +1,40 @@
+"""Shared fixtures: one temporary copy of the workflow, and one run of the reduced (CI) pipeline in it.
+
+``tests/test_pipeline.py`` and ``tests/test_report.py`` both need the reduced pipeline's outputs; the session
+fixture :func:`ci_pipeline` runs it once (about 2-3 minutes on 2 cores) for both. The copy never touches a user's
+``results/``.
+"""
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SNAKEMAKE = [sys.executable, "-m", "snakemake"]
+CI_CONFIG = "config/config.ci.yaml"
+
+
+def run_cmd(cmd, cwd, timeout=900):
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="session")
+def repo_copy(tmp_path_factory):
+    """Snakefile, workflow/, config/ and data/ copied to a temporary directory."""
+    d = tmp_path_factory.mktemp("wf")
+    for item in ("Snakefile", "workflow", "config", "data"):
+        src = ROOT / item
+        if src.is_dir():
+            shutil.copytree(src, d / item)
+        else:
+            shutil.copy(src, d / item)
+    return d
+
+
+@pytest.fixture(scope="session")
+def ci_pipeline(repo_copy):
+    """The reduced pipeline run once in :func:`repo_copy` (``snakemake -c2 --configfile config/config.ci.yaml``)."""
+    return run_cmd(SNAKEMAKE + ["-c2", "--configfile", CI_CONFIG], repo_copy, timeout=1800)

@@ -1,0 +1,210 @@
+"""Clinician session (src/neckstrength/session.py): input validation, the log, and the interactive program driven
+through a pseudo-terminal (pexpect): a normal session, invalid inputs, skip, undo, stop, a SIGKILL and resume,
+and the CSV replay giving the same results as the interactive run. Small N_F (8,000) keeps it under a minute."""
+
+import json
+import os
+import signal
+import sys
+from pathlib import Path
+
+import pytest
+
+from neckstrength.io import MAX_PLAUSIBLE_FORCE_N
+from neckstrength.session import (InputError, SessionLog, effective_entries, parse_activations, parse_entry,
+                                  parse_force)
+
+pexpect = pytest.importorskip("pexpect")
+
+ROOT = Path(__file__).resolve().parents[1]
+N_F = "8000"
+DIRS = ["forehead", "backHigh", "chinFront", "chinUnder", "backLow", "back", "noseBelow"]
+MUSCLES = ["TC-E", "TC-F", "TS-B", "TS-E", "TS-F", "CS-E", "CS-F"]
+PROMPT = r"\[help\]> |command \(measure/undo/stop/help\)> "
+
+
+# --------------------------------------------------------------------------- parsing (no terminal)
+
+@pytest.mark.parametrize("text, value", [("142", 142.0), ("142 N", 142.0), ("142N", 142.0), (" 1.5e2 ", 150.0),
+                                         (f"{MAX_PLAUSIBLE_FORCE_N:g}", MAX_PLAUSIBLE_FORCE_N)])
+def test_parse_force_accepts_newtons(text, value):
+    assert parse_force(text) == value
+
+
+@pytest.mark.parametrize("text, message", [
+    ("abc", "not a number"), ("-5", "negative"), ("0", "force 0 N"), ("nan", "not a"),
+    ("5000", f"bound {MAX_PLAUSIBLE_FORCE_N:g} N"), ("120 kN", "wrong unit 'kN'"), ("12 Nm", "a moment"),
+    ("12 N m", "a moment"), ("30 lbf", "wrong unit 'lbf'"), ("20kg", "wrong unit 'kg'")])
+def test_parse_force_rejects_with_message(text, message):
+    with pytest.raises(InputError, match=message):
+        parse_force(text)
+
+
+def test_parse_activations():
+    assert parse_activations("act=TS-B:0.4,TS-E:1", MUSCLES) == {"TS-B": 0.4, "TS-E": 1.0}
+    for bad, msg in [("act=TS-B:1.5", r"outside \[0, 1\]"), ("act=TS-B:-0.1", "outside"), ("act=XX:0.2", "unknown muscle"),
+                     ("act=TS-B", "MUSCLE:VALUE"), ("act=TS-B:x", "not a number"), ("act=TS-B:0.1,TS-B:0.2", "twice")]:
+        with pytest.raises(InputError, match=msg):
+            parse_activations(bad, MUSCLES)
+
+
+def test_parse_entry_directions():
+    e = parse_entry("measure chinFront 90 act=TS-B:0.3", "back", DIRS, ["forehead"], MUSCLES)
+    assert (e.kind, e.direction, e.force, e.activations) == ("measure", "chinFront", 90.0, {"TS-B": 0.3})
+    assert parse_entry("120", "back", DIRS, [], MUSCLES).direction == "back"
+    assert parse_entry("skip", "back", DIRS, [], MUSCLES).direction == "back"
+    with pytest.raises(InputError, match="unknown direction 'chinfrnt'.*did you mean chinFront"):
+        parse_entry("measure chinfrnt 90", "back", DIRS, [], MUSCLES)
+    with pytest.raises(InputError, match="already been tested"):
+        parse_entry("measure forehead 90", "back", DIRS, ["forehead"], MUSCLES)
+    with pytest.raises(InputError, match="force is missing"):
+        parse_entry("measure chinFront", "back", DIRS, [], MUSCLES)
+
+
+def test_log_drops_torn_tail_and_undo_folding(tmp_path):
+    log = SessionLog(tmp_path / "l.jsonl")
+    log.append({"action": "measure", "direction": "a", "force_N": 1.0})
+    log.append({"action": "skip", "direction": "b"})
+    log.append({"action": "undo"})
+    with open(log.path, "ab") as fh:
+        fh.write(b'{"action": "meas')                       # killed mid-write
+    recs = log.read()
+    assert [r["action"] for r in recs] == ["measure", "skip", "undo"]
+    assert log.path.read_bytes().endswith(b"}\n")
+    assert [r["direction"] for r in effective_entries(recs)] == ["a"]
+
+
+# --------------------------------------------------------------------------- the program in a pseudo-terminal
+
+def spawn(args, cwd=ROOT):
+    env = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="120")
+    child = pexpect.spawn(sys.executable, ["-m", "neckstrength.cli", "session", *args], cwd=str(cwd), env=env,
+                          encoding="utf-8", timeout=60, dimensions=(50, 200))
+    return child
+
+
+def start_args(out, cache, participant="P01"):
+    return ["start", "--out", str(out), "--model", "p2m7", "--participant", participant, "--n-candidates", N_F,
+            "--cache", str(cache)]
+
+
+def send(child, line, expect=PROMPT):
+    child.sendline(line)
+    child.expect(expect)
+    return child.before
+
+
+def records(out):
+    return [json.loads(x) for x in (Path(out) / "session.log.jsonl").read_text().splitlines()]
+
+
+def data_rows(path):
+    return [x for x in Path(path).read_text().splitlines() if not x.startswith("#")]
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("session_cache")
+
+
+def test_interactive_session_validation_skip_undo_stop_and_replay(tmp_path, cache):
+    out = tmp_path / "s1"
+    c = spawn(start_args(out, cache))
+    c.expect(PROMPT)
+    first = c.before
+    assert "Proposed:" in first and "the head pushes" in first                     # where to push
+    assert "Expected entropy reduction" in first and "<- proposed" in first        # bar chart
+    assert sum(d in first for d in DIRS) == 7 and "█" in first
+    assert "Current estimate" in first and all(m in first for m in MUSCLES)        # estimate +- sd
+    assert "criterion" in first
+    proposed = first.split("Proposed: ")[1].split()[0]
+
+    bad = {"abc": "not a number", "-5": "negative", "0": "force 0 N", "5000": f"bound {MAX_PLAUSIBLE_FORCE_N:g} N",
+           "120 kN": "wrong unit 'kN'", "12 Nm": "a moment", "measure nowhere 100": "unknown direction 'nowhere'",
+           "measure forehead 100 act=TS-B:1.5": r"outside [0, 1]", "undo": "nothing to undo", "": "empty input"}
+    for line, msg in bad.items():
+        text = send(c, line)
+        assert "invalid:" in text and msg in text, (line, text)
+    assert not (out / "session.log.jsonl").exists() or records(out) == []          # nothing invalid logged
+
+    assert "Commands:" in send(c, "help")
+    assert f"recorded {proposed}: 150 N" in send(c, "150")
+    text = send(c, f"measure {proposed} 120")
+    assert "already been tested" in text
+    other = next(d for d in DIRS if d != proposed)
+    assert f"recorded {other}: 110 N with activations TS-B 0.4" in send(c, f"measure {other} 110 act=TS-B:0.4")
+    text = send(c, "skip")
+    assert "skipped" in text and "(skipped)" in text
+    assert "undone: skip" in send(c, "undo")
+    text = send(c, "undo")
+    assert f"undone: measurement {other}" in text
+    assert f"recorded {other}: 115 N" in send(c, f"measure {other} 115")
+    third = c.before.split("Proposed: ")[1].split()[0]
+    send(c, "135")
+    c.sendline("stop")
+    c.expect("wrote .*summary.png")
+    c.expect(pexpect.EOF)
+    c.close()
+    assert c.exitstatus == 0
+    assert (out / "summary.csv").exists() and (out / "summary.png").stat().st_size > 1000
+    acts = [r["action"] for r in records(out)]
+    assert acts == ["measure", "measure", "skip", "undo", "undo", "measure", "measure", "stop"]
+    assert [r["direction"] for r in effective_entries(records(out))] == [proposed, other, third]
+
+    # the same measurements from a CSV: identical summary and trajectory
+    out2 = tmp_path / "s2"
+    r = spawn(["replay", "--csv", str(out / "measurements.csv"), *start_args(out2, cache)[1:]])
+    r.expect(pexpect.EOF)
+    r.close()
+    assert r.exitstatus == 0, r.before
+    assert data_rows(out2 / "summary.csv") == data_rows(out / "summary.csv")
+    assert (out2 / "summary.csv").read_text() == (out / "summary.csv").read_text()
+    assert (out2 / "steps.csv").read_text() == (out / "steps.csv").read_text()
+
+
+def test_kill_mid_session_and_resume(tmp_path, cache):
+    out = tmp_path / "k"
+    c = spawn(start_args(out, cache, "P02"))
+    c.expect(PROMPT)
+    send(c, "150")
+    send(c, "measure backLow 95")
+    before_kill = c.before.split("===", 1)[1]          # the display after two measurements
+    c.kill(signal.SIGKILL)
+    c.close(force=True)
+    assert [r["action"] for r in records(out)] == ["measure", "measure"]
+
+    r = spawn(["resume", "--out", str(out)])
+    r.expect(PROMPT)
+    assert "resumed" in r.before and "2 measurements" in r.before
+    assert r.before.split("===", 1)[1] == before_kill  # same proposal, bar chart, estimate and advice
+    send(r, "measure chinFront 120")
+    r.sendline("stop")
+    r.expect(pexpect.EOF)
+    r.close()
+    assert r.exitstatus == 0
+    # the killed-and-resumed session equals an uninterrupted replay of its measurements
+    out2 = tmp_path / "k2"
+    p = spawn(["replay", "--csv", str(out / "measurements.csv"), *start_args(out2, cache, "P02")[1:]])
+    p.expect(pexpect.EOF)
+    p.close()
+    assert p.exitstatus == 0
+    assert (out2 / "summary.csv").read_text() == (out / "summary.csv").read_text()
+
+
+def test_errors_on_reuse_missing_and_bad_csv(tmp_path, cache):
+    out = tmp_path / "e"
+    bad = tmp_path / "bad.csv"
+    bad.write_text("direction,force_N\nforehead,150\nback,12 kN\n")
+    p = spawn(["replay", "--csv", str(bad), *start_args(out, cache)[1:]])
+    p.expect(pexpect.EOF)
+    p.close()
+    assert p.exitstatus == 2 and "row 3" in p.before and "wrong unit 'kN'" in p.before
+    assert not (out / "session.log.jsonl").exists()                 # the whole CSV is checked before logging
+    p = spawn(start_args(out, cache))
+    p.expect(pexpect.EOF)
+    p.close()
+    assert p.exitstatus == 2 and "already holds a session" in p.before
+    p = spawn(["resume", "--out", str(tmp_path / "none")])
+    p.expect(pexpect.EOF)
+    p.close()
+    assert p.exitstatus == 2 and "no session.json" in p.before

@@ -1,0 +1,125 @@
+# Sim-to-real gap diagnosis (issue 8; docs/gap_diagnosis.md): per {model} x {dataset} (forces only; Table A.3
+# withheld and compared afterwards), a pooled table over the data sets, and the withheld-effect benchmark.
+
+
+rule diagnose:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+        directions="results/geometry/directions.csv",
+        measurements=gap_measurements(),
+    output:
+        residuals="results/gap/{model}/{dataset}/residuals.csv",
+        planes="results/gap/{model}/{dataset}/planes.csv",
+        components="results/gap/{model}/{dataset}/components.csv",
+        muscles="results/gap/{model}/{dataset}/muscles.csv",
+        effects="results/gap/{model}/{dataset}/effects.csv",
+        strengths="results/gap/{model}/{dataset}/strengths.csv",
+        activation_check="results/gap/{model}/{dataset}/activation_check.csv",
+        summary="results/gap/{model}/{dataset}/summary.json",
+        report="results/gap/{model}/{dataset}/report.md",
+        fig_radar=report(
+            "results/gap/{model}/{dataset}/fig_radar.png",
+            caption="../report/gap_radar.rst",
+            category="Gap diagnosis",
+            subcategory="{model}",
+            labels={"model": "{model}", "dataset": "{dataset}", "figure": "measured vs model"},
+        ),
+        fig_where=report(
+            "results/gap/{model}/{dataset}/fig_where.png",
+            caption="../report/gap_where.rst",
+            category="Gap diagnosis",
+            subcategory="{model}",
+            labels={"model": "{model}", "dataset": "{dataset}", "figure": "where"},
+        ),
+        fig_effects=report(
+            "results/gap/{model}/{dataset}/fig_effects.png",
+            caption="../report/gap_effects.rst",
+            category="Gap diagnosis",
+            subcategory="{model}",
+            labels={"model": "{model}", "dataset": "{dataset}", "figure": "which effect"},
+        ),
+        fig_activation=report(
+            "results/gap/{model}/{dataset}/fig_activation.png",
+            caption="../report/gap_activation.rst",
+            category="Gap diagnosis",
+            subcategory="{model}",
+            labels={"model": "{model}", "dataset": "{dataset}", "figure": "Table A.3 check"},
+        ),
+    log:
+        "logs/gap/{model}/{dataset}/diagnose.log",
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=60,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/gap_diagnose.py"
+
+
+rule gap_pooled:
+    input:
+        summaries=gap_summaries,
+        effects=gap_effect_tables,
+    output:
+        table=report(
+            "results/gap/{model}/pooled.csv",
+            caption="../report/gap_pooled.rst",
+            category="Gap diagnosis",
+            subcategory="{model}",
+            labels={"model": "{model}", "table": "where / which / how far per data set"},
+        ),
+        ranking=report(
+            "results/gap/{model}/pooled_ranking.csv",
+            caption="../report/gap_ranking.rst",
+            category="Gap diagnosis",
+            subcategory="{model}",
+            labels={"model": "{model}", "table": "pooled effect ranking"},
+        ),
+    params:
+        datasets=gap_dataset_list,
+    log:
+        "logs/gap/{model}/pooled.log",
+    threads: 1
+    resources:
+        mem_mb=500,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/gap_pooled.py"
+
+
+rule gap_benchmark:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+        directions="results/geometry/directions.csv",
+    output:
+        confusion=report(
+            "results/gap/{model}/benchmark/confusion.csv",
+            caption="../report/gap_benchmark.rst",
+            category="Gap diagnosis",
+            subcategory="{model}: withheld-effect benchmark",
+            labels={"model": "{model}", "table": "confusion matrix"},
+        ),
+        cases=report(
+            "results/gap/{model}/benchmark/cases.csv",
+            caption="../report/gap_benchmark_cases.rst",
+            category="Gap diagnosis",
+            subcategory="{model}: withheld-effect benchmark",
+            labels={"model": "{model}", "table": "per case"},
+        ),
+        effect_size="results/gap/{model}/benchmark/effect_size.csv",
+        report="results/gap/{model}/benchmark/benchmark.md",
+        summary="results/gap/{model}/benchmark/summary.json",
+    log:
+        "logs/gap/{model}/benchmark.log",
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=120,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/gap_benchmark.py"

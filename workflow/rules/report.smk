@@ -1,0 +1,95 @@
+# Report: the thesis scorecard (every printed number we reproduce, ours beside it, with a verdict), run time and
+# peak memory per job from the run's own records, software versions and seeds. Included LAST in the Snakefile:
+# the input functions (common.smk) enumerate the outputs of every chapter included before.
+
+
+rule scorecard:
+    input:
+        scorecard_inputs(),
+    output:
+        table=report(
+            "results/report/scorecard.csv",
+            caption="../report/scorecard.rst",
+            category="Scorecard",
+            subcategory="thesis vs ours",
+            labels={"table": "scorecard (every item)"},
+        ),
+        summary=report(
+            "results/report/scorecard_summary.csv",
+            caption="../report/scorecard_summary.rst",
+            category="Scorecard",
+            subcategory="thesis vs ours",
+            labels={"table": "summary per chapter"},
+        ),
+        tolerances=report(
+            "results/report/scorecard_tolerances.csv",
+            caption="../report/scorecard_tolerances.rst",
+            category="Scorecard",
+            subcategory="thesis vs ours",
+            labels={"table": "tolerances and their reasons"},
+        ),
+    params:
+        tolerances=config["report"]["tolerances"],
+    log:
+        "logs/report/scorecard.log",
+    threads: 1
+    resources:
+        mem_mb=1000,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/scorecard.py"
+
+
+rule report_environment:
+    output:
+        report(
+            "results/report/environment.csv",
+            caption="../report/environment.rst",
+            category="Run records",
+            subcategory="software and seeds",
+            labels={"table": "software versions and seeds"},
+        ),
+    params:
+        seed=config["seed"],
+        software=report_software_versions(),
+    log:
+        "logs/report/environment.log",
+    threads: 1
+    resources:
+        mem_mb=500,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/report_environment.py"
+
+
+rule report_runtime:
+    input:
+        runtime_inputs(),
+    output:
+        jobs=report(
+            "results/report/runtime.csv",
+            caption="../report/runtime.rst",
+            category="Run records",
+            subcategory="run time and memory",
+            labels={"table": "per job"},
+        ),
+        by_rule=report(
+            "results/report/runtime_by_rule.csv",
+            caption="../report/runtime.rst",
+            category="Run records",
+            subcategory="run time and memory",
+            labels={"table": "per rule"},
+        ),
+    params:
+        metadata=".snakemake/metadata",
+    log:
+        "logs/report/runtime.log",
+    threads: 1
+    resources:
+        mem_mb=500,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/report_runtime.py"
