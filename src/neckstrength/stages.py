@@ -146,9 +146,9 @@ def load_directions(path: str | Path) -> pd.DataFrame:
 
 def model_directions(model: ReducedModel, directions: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray]:
     """Directions used by a model (all 25 spatial, the 7 sagittal for planar) and task-space unit wrenches."""
-    d = directions[directions["sagittal"]] if model.planar else directions
-    U6 = d[[f"u_{c}" for c in ("Mx", "My", "Mz", "Fx", "Fy", "Fz")]].to_numpy(float)
-    return d.reset_index(drop=True), model.task_direction(U6)
+    from .datasets import model_directions_table
+
+    return model_directions_table(model, directions)
 
 
 def stage_reduce(config: Mapping, model_name: str, out_params: str | Path, out_jt: str | Path,
