@@ -150,6 +150,7 @@ def stage_gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], 
     for ds, sp, ep in zip(datasets, summaries, effects):
         s = json.loads(Path(sp).read_text())
         rows.append({"dataset": ds, "worst_plane": s["worst_plane"], "worst_component": s["worst_component"],
+                     "model_too_weak_in": s["model_too_weak_plane"], "model_too_strong_in": s["model_too_strong_plane"],
                      "worst_directions": ";".join(s["worst_directions"]),
                      "unreachable": ";".join(s["unreachable"]) or "-", "chosen": s["chosen"],
                      "chosen_theta": s["chosen_theta"], "p_best": s["p_best_chosen"],
@@ -167,7 +168,9 @@ def stage_gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], 
     num = df.select_dtypes("number").mean()
     pooled = {c: num.get(c, "") for c in df.columns}
     pooled.update({"dataset": "pooled (mean)", "worst_plane": df["worst_plane"].mode().iloc[0],
-                   "worst_component": df["worst_component"].mode().iloc[0], "worst_directions": "",
+                   "worst_component": df["worst_component"].mode().iloc[0],
+                   "model_too_weak_in": df["model_too_weak_in"].mode().iloc[0],
+                   "model_too_strong_in": df["model_too_strong_in"].mode().iloc[0], "worst_directions": "",
                    "unreachable": "", "chosen": df["chosen"].mode().iloc[0], "chosen_theta": ""})
     df = pd.concat([df, pd.DataFrame([pooled])], ignore_index=True)
     atomic_write_csv(df, out_csv, [f"gap diagnosis pooled over data sets ({model_name}): where / which / how far, "

@@ -366,7 +366,7 @@ def emg_group_activation(ctx: GapContext, inst_sim: Simulator, f_muscles: np.nda
     return np.mean(vals, axis=0) if vals else np.full(len(alpha), np.nan)
 
 
-def _component_table(dirs: pd.DataFrame, r_in: np.ndarray, r_cv: np.ndarray) -> pd.DataFrame:
+def _component_table(dirs: pd.DataFrame, r_in: np.ndarray, r_cv: np.ndarray, d_cv: np.ndarray) -> pd.DataFrame:
     U = dirs[[f"u_{c}" for c in WRENCH_COMPONENTS]].to_numpy(float)
     M, F = U[:, :3], U[:, 3:]
     Mh = M / np.maximum(np.linalg.norm(M, axis=1, keepdims=True), 1e-12)
@@ -383,7 +383,8 @@ def _component_table(dirs: pd.DataFrame, r_in: np.ndarray, r_cv: np.ndarray) -> 
                              "mean_residual": np.average(r_in, weights=w),
                              "rms_residual": float(np.sqrt(np.average(r_in ** 2, weights=w))),
                              "mean_residual_cv": np.average(r_cv, weights=w),
-                             "rms_residual_cv": float(np.sqrt(np.average(r_cv ** 2, weights=w)))})
+                             "rms_residual_cv": float(np.sqrt(np.average(r_cv ** 2, weights=w))),
+                             "D_cv": np.average(d_cv, weights=w)})
     return pd.DataFrame(rows)
 
 
@@ -589,7 +590,7 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
     resid["reach"] = np.where(env["s_max"] < 0, "too strong for the model",
                               np.where(env["s_min"] > 0, "too weak for the model", "reachable"))
     planes = _plane_table(dirs, r_in, r_cv, d_cv)
-    comps = _component_table(dirs, r_in, r_cv)
+    comps = _component_table(dirs, r_in, r_cv, d_cv)
     muscles = _muscle_table(ctx, alpha_b[0][:, :ctx.model.m], r_in, r_cv)
     # fitted strengths
     srows = []
@@ -615,8 +616,12 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
         "rms_before": float(np.sqrt(np.mean(r_cv ** 2))), "rms_after": float(np.sqrt(np.mean(rcv[chosen] ** 2))),
         "D_fit_base": float(_d(f_in, T, s.epsilon).mean()),
         "D_fit_chosen": float(_d(f_ch_full, T, s.epsilon).mean()),
-        "worst_plane": str(planes.sort_values("rms_residual_cv", ascending=False)["plane"].iloc[0]),
-        "worst_component": str(comps.sort_values("rms_residual_cv", ascending=False)["component"].iloc[0]),
+        "worst_plane": str(planes.sort_values("D_cv")["plane"].iloc[0]),
+        "worst_component": str(comps.sort_values("D_cv")["component"].iloc[0]),
+        "model_too_weak_plane": str(planes.sort_values("mean_residual")["plane"].iloc[0]),
+        "model_too_weak_mean_residual": float(planes["mean_residual"].min()),
+        "model_too_strong_plane": str(planes.sort_values("mean_residual")["plane"].iloc[-1]),
+        "model_too_strong_mean_residual": float(planes["mean_residual"].max()),
         "worst_directions": list(resid.sort_values("d_cv")["direction"].head(3)),
         "unreachable": list(resid.loc[resid["reach"] != "reachable", "direction"]),
         "penalty_per_param": s.penalty, "epsilon": s.epsilon,

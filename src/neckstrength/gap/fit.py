@@ -45,7 +45,7 @@ class FitSettings:
     chunk_size: int = 65536
 
 
-def make_cache(max_bases: int = 64):
+def make_cache(max_bases: int = 512):
     """A basis cache for the batched solver (None when only the reference solver is available).
 
     Few bases per direction: the fits move through a small neighbourhood, and a cache per model instance

@@ -164,9 +164,11 @@ def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str,
              f"1 - D (Eq. 5.5/5.6, epsilon = {s['epsilon']}) of held-out predictions; score = gap + "
              f"{s['penalty_per_param']} x extra parameters.", "",
              "## Summary", "",
-             f"- **Where**: worst plane `{s['worst_plane']}`, worst wrench component `{s['worst_component']}`, "
-             f"worst held-out directions {', '.join(s['worst_directions'])}; directions outside the model's reach "
-             f"envelope (no strengths within the bounds fit them): "
+             f"- **Where**: worst plane `{s['worst_plane']}` and wrench component `{s['worst_component']}` (lowest "
+             f"held-out D), worst held-out directions {', '.join(s['worst_directions'])}; the fitted model is too weak "
+             f"in `{s['model_too_weak_plane']}` (mean residual {s['model_too_weak_mean_residual']:+.2f}) and too "
+             f"strong in `{s['model_too_strong_plane']}` ({s['model_too_strong_mean_residual']:+.2f}); directions "
+             f"outside the model's reach envelope (no strengths within the bounds fit them): "
              f"{', '.join(s['unreachable']) if s['unreachable'] else 'none'}.",
              f"- **Which**: `{s['chosen']}` ({s['chosen_theta']}), bootstrap P(best) = {s['p_best_chosen']:.2f}.",
              f"- **How far**: held-out gap {s['gap_before']:.3f} -> {s['gap_after']:.3f}; held-out RMS relative "
