@@ -68,6 +68,14 @@ def test_reduced_pipeline_end_to_end(workdir, ci_pipeline):
     cmp = pd.read_csv(res / "model/s3m24/parameters_vs_thesis.csv", comment="#")
     sub = cmp[(cmp.group == "subocc-R") & (cmp.quantity == "strength_N")]
     assert abs(float(sub["ours"].iloc[0]) - 100.5) < 0.11
+    # beyond-the-thesis Chapter 6: every criterion judged on the joint posterior; same prior at t = 0
+    crit = pd.read_csv(res / "chapter6/criteria/p2m7/summary.csv", comment="#")
+    assert set(crit["criterion"]) == {"joint_eig", "marginal_entropy", "random", "thesis (Alg. 7-9)"}
+    t0 = crit[crit.t == 0]
+    assert t0["entropy"].nunique() == 1 and (t0["d_entropy_vs_random"].abs() < 1e-9).all()
+    assert (crit.groupby("criterion")["entropy"].apply(lambda e: e.iloc[-1] < e.iloc[0])).all()
+    joint = pd.read_csv(res / "chapter6/p2m7/Sim/joint_estimate.csv", comment="#")
+    assert len(joint) == 2 * 7 and joint["f_c"].gt(0).all() and joint["f_true"].notna().all()
     # a second run has nothing to do (outputs complete and up to date)
     r2 = run(SNAKEMAKE + ["-c2", "--configfile", "config/config.ci.yaml", "-n"], workdir)
     assert "Nothing to be done" in r2.stdout + r2.stderr

@@ -157,3 +157,64 @@ rule sequential_order_comparison:
         "../envs/neckstrength.yaml"
     script:
         "../scripts/chapter6_order_comparison.py"
+
+
+rule sequential_joint:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+        directions="results/geometry/directions.csv",
+        measurements=config["data"]["measurements"],
+    output:
+        iterations="results/chapter6/{named}/{dataset}/joint_iterations.csv",
+        estimate=report(
+            "results/chapter6/{named}/{dataset}/joint_estimate.csv",
+            caption="../report/chapter6_joint.rst",
+            category="Chapter 6",
+            subcategory="beyond the thesis",
+            labels={"model": "{named}", "data set": "{dataset}", "table": "joint posterior estimate"},
+        ),
+        summary="results/chapter6/{named}/{dataset}/joint_summary.json",
+    log:
+        "logs/chapter6/{named}/{dataset}/joint.log",
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=60,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/chapter6_joint.py"
+
+
+rule sequential_criteria:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+        directions="results/geometry/directions.csv",
+    output:
+        runs="results/chapter6/criteria/{named}/runs.csv",
+        summary=report(
+            "results/chapter6/criteria/{named}/summary.csv",
+            caption="../report/chapter6_criteria.rst",
+            category="Chapter 6",
+            subcategory="beyond the thesis",
+            labels={"model": "{named}", "table": "test-selection criteria"},
+        ),
+        figure=report(
+            "results/chapter6/criteria/{named}/fig_criteria.png",
+            caption="../report/chapter6_criteria.rst",
+            category="Chapter 6",
+            subcategory="beyond the thesis",
+            labels={"model": "{named}", "figure": "test-selection criteria"},
+        ),
+    log:
+        "logs/chapter6/criteria/{named}.log",
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=120,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/chapter6_criteria.py"

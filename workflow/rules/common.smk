@@ -196,6 +196,11 @@ def chapter6_outputs():
             out.append(f"results/chapter6/{named}/{d}/fig_6_4a_posteriors.png")
     if config["chapter6"]["order_comparison"]["n_participants"] > 0:
         out.append("results/chapter6/order_comparison/orders_vs_random.csv")
+    for named in config["chapter6"]["joint"]["models"]:
+        for d in chapter6_datasets_for(named):
+            out.append(f"results/chapter6/{named}/{d}/joint_estimate.csv")
+    for named in config["chapter6"]["criteria_comparison"]["models"]:
+        out.append(f"results/chapter6/criteria/{named}/summary.csv")
     return out
 
 
