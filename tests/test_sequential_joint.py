@@ -66,8 +66,17 @@ def test_resampling_weights_are_unbiased(setup):
     post.resample()
     e2 = post.estimate()
     assert np.all(np.abs(e1["f_c"] - e2["f_c"]) < 0.25 * e1["sd_c"])
-    # the importance weights are bounded by the defensive prior share
+    # after resample-move the candidates are draws from the target: equal weights, some moves accepted
+    assert post.ess_share() == pytest.approx(1.0)
+    assert 0.05 < post.last_acceptance < 0.95
+    # importance resampling alone: the weights are bounded by the defensive prior share, the mean survives
+    post = _post(setup, n=40000, n_moves=0)
+    for d in ("back", "chinFront"):
+        post.update(d, data.forces[data.directions.index(d)])
+    e1 = post.estimate()
+    post.resample()
     assert np.exp(post.log_iw).max() <= 1.0 / post.settings.defensive + 1e-9
+    assert np.all(np.abs(e1["f_c"] - post.estimate()["f_c"]) < 0.25 * e1["sd_c"])
 
 
 def test_information_gain_gaussian_case(setup):

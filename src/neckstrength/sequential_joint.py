@@ -17,7 +17,9 @@ weights falls below ``resample_ess`` x N ("the prior sample becomes too thin"), 
 defensive mixture ``q = (1 - lambda) LogNormal(mu, c^2 Sigma) + lambda p_0`` fitted to the current weighted
 candidates (mean and covariance of log f, inflated by ``c``); their maximum wrenches in every direction are
 computed with the batched solver and their weights ``p_0 / q prod_s d`` recomputed from all tests so far. The
-defensive prior share bounds ``iw <= 1 / lambda``.
+defensive prior share bounds ``iw <= 1 / lambda``. A test that alone would collapse the ESS (a measurement the
+model cannot fit: the participants) is brought in by tempering, ``d^phi`` with phi rising to 1 in up to
+``max_resamples`` steps, each chosen so that the ESS at most halves, with a resample after each (adaptive SMC).
 
 Two criteria propose the next test on this posterior:
 
@@ -66,7 +68,8 @@ class JointSettings:
     resample_ess: float = 0.05      # resample when ESS < resample_ess x N
     defensive: float = 0.1          # prior share lambda of the proposal
     inflate: float = 1.2            # proposal covariance = inflate^2 x weighted covariance of log f
-    max_resamples: int = 1          # per update (more only while the ESS keeps rising) (each one recomputes N x K wrenches)
+    max_resamples: int = 4          # per update: tempering steps, each followed by a resample (each one recomputes N x K wrenches)
+    n_moves: int = 2                # Metropolis-Hastings steps after each resample (0 = importance resampling only)
     n_sim: int = 50                 # N_S for 'marginal_entropy'
     max_particles: int = 20_000     # criteria use the heaviest candidates holding 1 - 1e-4 of the weight, at most this
     n_ybins: int = 256              # predictive histogram for 'joint_eig' (at least 4 bins per noise sd)
@@ -126,6 +129,7 @@ class JointPosterior:
         self.tests: list[dict] = []
         self.n_resamples = 0
         self.n_lps = 0
+        self.last_acceptance = float('nan')
         self.F = sample_prior(self.f0, settings.prior_sd_rel, settings.n_candidates, rng)
         self.log_iw = np.zeros(len(self.F))
         self.W = self._wrenches(self.F)
@@ -204,29 +208,60 @@ class JointPosterior:
         bounds = activation_bounds(activations, self.model.muscle_names, self.settings.emg_band)
         if bounds is not None:
             self.W[:, i] = self._bounded(self.F, i, bounds)
-        self.tests.append({"i": i, "w_meas": w_meas, "force": float(force), "bounds": bounds})
-        self.loglik = self.loglik + self._test_loglik(self.W[:, i], w_meas)
-        ess = self.ess_share()
-        for _ in range(self.settings.max_resamples):
-            if ess >= self.settings.resample_ess:
-                break
-            self.resample()
-            new = self.ess_share()
-            if new <= ess:
-                break
-            ess = new
+        self.tests.append({"i": i, "w_meas": w_meas, "force": float(force), "bounds": bounds, "phi": 0.0})
+        self._temper_in(self.tests[-1])
         return self.estimate()
 
+    def _ess_of(self, logw: np.ndarray) -> float:
+        lw = logw - logw.max()
+        w = np.exp(lw)
+        return float(w.sum() ** 2 / (w ** 2).sum() / len(w))
+
+    def _temper_in(self, t: dict) -> None:
+        """Add test ``t`` to the weights; if the ESS would fall below ``resample_ess``, bring it in by tempering
+        (its log-likelihood times phi, 0 < phi <= 1, each step chosen so that the ESS halves at most, then
+        resampled), up to ``max_resamples`` steps; the last step takes phi = 1 whatever the ESS."""
+        thr = self.settings.resample_ess
+        for _ in range(self.settings.max_resamples):
+            base = self.log_iw + self._loglik_all(exclude=t)
+            new = self._test_loglik(self.W[:, t["i"]], t["w_meas"])
+            if self._ess_of(base + new) >= thr:
+                t["phi"] = 1.0
+                break
+            lo, hi = t["phi"], 1.0
+            target = max(thr, 0.5 * self._ess_of(base + lo * new))
+            for _ in range(40):        # the ESS falls with phi: bisection for ESS(phi) = target
+                mid = 0.5 * (lo + hi)
+                if self._ess_of(base + mid * new) >= target:
+                    lo = mid
+                else:
+                    hi = mid
+            t["phi"] = lo
+            self.loglik = self._loglik_all()
+            self.resample()
+        else:
+            t["phi"] = 1.0
+        self.loglik = self._loglik_all()
+        t["ess_share"] = self.ess_share()
+
+    def _loglik_all(self, exclude: dict | None = None) -> np.ndarray:
+        out = np.zeros(len(self.F))
+        for t in self.tests:
+            if t is not exclude and t["phi"] > 0:
+                out += t["phi"] * self._test_loglik(self.W[:, t["i"]], t["w_meas"])
+        return out
+
     def resample(self) -> None:
-        """Draw new candidates from the defensive log-normal mixture fitted to the current weights."""
+        """Importance resampling, then resample-move: (1) new candidates from the defensive log-normal mixture
+        fitted to the current weights, weighted ``p_0 / q x likelihood``; (2) if ``n_moves`` > 0, multinomial
+        resampling by weight (equal weights after it) and ``n_moves`` Metropolis-Hastings steps per candidate
+        (random walk in log f, covariance 2.38^2 / m x the weighted covariance) on the current target, which
+        restore diversity where the posterior is too narrow for any fitted proposal."""
         s = self.settings
-        w = self.weights()
-        Y = np.log(self.F)
-        mu = w @ Y
-        C = ((Y - mu) * w[:, None]).T @ (Y - mu) / max(1.0 - (w ** 2).sum(), 1e-12)
-        C = s.inflate ** 2 * (C + 1e-6 * np.eye(len(mu)))
-        Lc = np.linalg.cholesky(C)
         N, m = self.F.shape
+        w = self.weights()
+        mu, C = self._log_moments(w)
+        Lc = np.linalg.cholesky(s.inflate ** 2 * C)
         n_prior = self.rng.binomial(N, s.defensive)
         Yn = mu + self.rng.standard_normal((N - n_prior, m)) @ Lc.T
         F = np.vstack([np.exp(Yn), sample_prior(self.f0, s.prior_sd_rel, n_prior, self.rng)])
@@ -239,12 +274,49 @@ class JointPosterior:
         self.F = F
         self.log_iw = lp - log_q
         self.W = self._wrenches(F)
-        self.loglik = np.zeros(N)
-        for t in self.tests:
-            self.loglik += self._test_loglik(self.W[:, t["i"]], t["w_meas"])
+        self.loglik = self._loglik_all()
+        if s.n_moves > 0:
+            self._move(s.n_moves)
         self.n_resamples += 1
         if self.progress:
-            self.progress(f"resampled ({self.n_resamples}): ESS share now {self.ess_share():.3f}")
+            self.progress(f"resampled ({self.n_resamples}): ESS share now {self.ess_share():.3f}"
+                          + (f", MH acceptance {self.last_acceptance:.2f}" if s.n_moves > 0 else ""))
+
+    def _log_moments(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        Y = np.log(self.F)
+        mu = w @ Y
+        C = ((Y - mu) * w[:, None]).T @ (Y - mu) / max(1.0 - (w ** 2).sum(), 1e-12)
+        return mu, C + 1e-6 * np.eye(len(mu))
+
+    def _move(self, n_moves: int) -> None:
+        """Multinomial resampling, then random-walk Metropolis-Hastings in log f on p_0(f) prod d^phi."""
+        N, m = self.F.shape
+        w = self.weights()
+        _, C = self._log_moments(w)
+        idx = np.minimum(np.searchsorted(np.cumsum(w), self.rng.random(N) * w.sum(), side="right"), N - 1)
+        F, W = self.F[idx], self.W[idx]
+        logt = self.log_prior(F) + self._loglik_all_for(W)
+        L = np.linalg.cholesky((2.38 ** 2 / m) * C)
+        acc = 0
+        for _ in range(n_moves):
+            Fp = F * np.exp(self.rng.standard_normal((N, m)) @ L.T)
+            Wp = self._wrenches(Fp)
+            logtp = self.log_prior(Fp) + self._loglik_all_for(Wp)
+            # random walk in log f: the Jacobian of f = exp(y) enters the acceptance ratio
+            a = np.log(self.rng.random(N)) < (logtp - logt + np.log(Fp).sum(axis=1) - np.log(F).sum(axis=1))
+            F[a], W[a], logt[a] = Fp[a], Wp[a], logtp[a]
+            acc += int(a.sum())
+        self.last_acceptance = acc / (N * n_moves)
+        self.F, self.W = F, W
+        self.loglik = self._loglik_all()
+        self.log_iw = -self.loglik            # equal weights: the candidates are draws from the current target
+
+    def _loglik_all_for(self, W: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(W))
+        for t in self.tests:
+            if t["phi"] > 0:
+                out += t["phi"] * self._test_loglik(W[:, t["i"]], t["w_meas"])
+        return out
 
     # -- criteria
     def _heavy(self) -> tuple[np.ndarray, np.ndarray]:
