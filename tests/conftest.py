@@ -38,3 +38,20 @@ def repo_copy(tmp_path_factory):
 def ci_pipeline(repo_copy):
     """The reduced pipeline run once in :func:`repo_copy` (``snakemake -c2 --configfile config/config.ci.yaml``)."""
     return run_cmd(SNAKEMAKE + ["-c2", "--configfile", CI_CONFIG], repo_copy, timeout=1800)
+
+
+@pytest.fixture(scope="session")
+def p2m7_full_config():
+    """(full config, p2m7 model, the 25 test directions), built from the repository root."""
+    import os
+
+    from neckstrength.cli import load_config
+    from neckstrength.stages import build_directions, full_model_from_config, model_from_config
+
+    cwd = os.getcwd()
+    os.chdir(ROOT)
+    try:
+        cfg = load_config(ROOT / "config" / "config.yaml")
+        return cfg, model_from_config(full_model_from_config(cfg), cfg, "p2m7"), build_directions(cfg)
+    finally:
+        os.chdir(cwd)

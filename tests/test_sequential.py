@@ -9,9 +9,7 @@ import numpy as np
 import pytest
 
 from neckstrength import sequential as sq
-from neckstrength.cli import load_config
 from neckstrength.datasets import simulated_dataset, thesis_f_actual
-from neckstrength.stages import build_directions, full_model_from_config, model_from_config
 
 ROOT = Path(__file__).resolve().parents[1]
 THESIS = ROOT / "data" / "thesis"
@@ -20,17 +18,8 @@ EXTENSION = {"back", "backLow", "backHigh"}   # posterior test points (Fig. 6.1)
 
 
 @pytest.fixture(scope="module")
-def setup():
-    import os
-
-    cwd = os.getcwd()
-    os.chdir(ROOT)
-    try:
-        cfg = load_config(ROOT / "config" / "config.yaml")
-        model = model_from_config(full_model_from_config(cfg), cfg, "p2m7")
-        directions = build_directions(cfg)
-    finally:
-        os.chdir(cwd)
+def setup(p2m7_full_config):
+    _, model, directions = p2m7_full_config
     fa = thesis_f_actual(model, THESIS, "Sim", table=TABLE_6_1)   # Table 6.1 'Sim' f_a
     data = simulated_dataset(model, directions, "Sim", fa, ["TS-B", "TS-E"], 0.05)
     f0, a, _ = sq.scaled_baseline(model, data)

@@ -10,26 +10,15 @@ import pandas as pd
 import pytest
 
 from neckstrength import sequential as sq
-from neckstrength.cli import load_config
 from neckstrength.datasets import simulated_dataset, thesis_f_actual
 from neckstrength.sequential_joint import JointPosterior, JointSettings, run_joint
-from neckstrength.stages import build_directions, full_model_from_config, model_from_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def setup():
-    import os
-
-    cwd = os.getcwd()
-    os.chdir(ROOT)
-    try:
-        cfg = load_config(ROOT / "config" / "config.yaml")
-        model = model_from_config(full_model_from_config(cfg), cfg, "p2m7")
-        directions = build_directions(cfg)
-    finally:
-        os.chdir(cwd)
+def setup(p2m7_full_config):
+    _, model, directions = p2m7_full_config
     fa = thesis_f_actual(model, ROOT / "data" / "thesis", "Sim", table="table_6_1_p2m7_sequential.csv")
     data = simulated_dataset(model, directions, "Sim", fa)
     f0, _, _ = sq.scaled_baseline(model, data)
