@@ -150,7 +150,8 @@ def stage_criteria_comparison(config: Mapping, model_name: str, directions_csv, 
     for p_i, child in enumerate(ss.spawn(int(cc["n_participants"]))):
         s_truth, s_cand, s_prop, s_thesis = child.spawn(4)
         rng = np.random.default_rng(s_truth)
-        fa = sample_prior(cc.get("scale", 1.5) * model.strengths, cc.get("noise_sd_rel", 0.4), 1, rng)[0]
+        f_scale = cc.get("scale", 1.5) * model.strengths          # the recipe's centre: error scale per muscle
+        fa = sample_prior(f_scale, cc.get("noise_sd_rel", 0.4), 1, rng)[0]
         try:
             data = simulated_dataset(model, d, f"P{p_i + 1}", fa)
         except ValueError as e:             # f_a that cannot produce every direction: redraw is not seeded here
@@ -180,6 +181,7 @@ def stage_criteria_comparison(config: Mapping, model_name: str, directions_csv, 
                 rows.append({"participant": p_i + 1, "criterion": "random" if crit == "random" else label,
                              "run": label, "t": int(t), "direction": gi["direction"].iloc[0],
                              "entropy": gi["entropy"].mean(), "rel_error": gi["rel_error"].mean(),
+                             "scaled_error": float(np.mean(np.abs(gi["f_c"].to_numpy() - fa) / f_scale)),
                              "ess_share": gi["ess_share"].iloc[0], "n_resamples": int(gi["n_resamples"].iloc[0])})
         _print(f"participant {p_i + 1}/{cc['n_participants']} done ({time.time() - t_start:.0f} s)")
     df = pd.DataFrame(rows)
@@ -189,18 +191,22 @@ def stage_criteria_comparison(config: Mapping, model_name: str, directions_csv, 
     note = [f"Chapter 6 beyond the thesis: test-selection criteria over {df['participant'].nunique()} simulated "
             f"participants ({model_name}, N {n_cand}, noise_rel {settings.noise_rel}); yardstick = joint posterior "
             f"after t tests (forces only); seed {config['seed']}",
-            "entropy = mean marginal entropy over muscles (nats); rel_error = mean |E - f_a| / f_a"]
+            "entropy = mean marginal entropy over muscles (nats); rel_error = mean |E - f_a| / f_a; scaled_error = "
+            "mean |E - f_a| / (scale f'_base) (not dominated by muscles whose f_a is near 0)"]
     atomic_write_csv(df, out_table, note, float_format="%.6g")
     # per participant: random = mean over its random orders; then mean and standard error over participants
-    per = df.groupby(["participant", "criterion", "t"], as_index=False)[["entropy", "rel_error"]].mean()
+    cols = ["entropy", "rel_error", "scaled_error"]
+    per = df.groupby(["participant", "criterion", "t"], as_index=False)[cols].mean()
     rand = per[per["criterion"] == "random"].set_index(["participant", "t"])
-    per = per.join(rand[["entropy", "rel_error"]], on=["participant", "t"], rsuffix="_random")
-    per["d_entropy_vs_random"] = per["entropy"] - per["entropy_random"]
-    per["d_rel_error_vs_random"] = per["rel_error"] - per["rel_error_random"]
+    per = per.join(rand[cols], on=["participant", "t"], rsuffix="_random")
+    for c in cols:
+        per[f"d_{c}_vs_random"] = per[c] - per[f"{c}_random"]
     agg = per.groupby(["criterion", "t"], sort=False).agg(
         n=("entropy", "size"), entropy=("entropy", "mean"), rel_error=("rel_error", "mean"),
         d_entropy_vs_random=("d_entropy_vs_random", "mean"), d_entropy_se=("d_entropy_vs_random", "sem"),
         d_rel_error_vs_random=("d_rel_error_vs_random", "mean"), d_rel_error_se=("d_rel_error_vs_random", "sem"),
+        scaled_error=("scaled_error", "mean"), d_scaled_error_vs_random=("d_scaled_error_vs_random", "mean"),
+        d_scaled_error_se=("d_scaled_error_vs_random", "sem"),
     ).reset_index()
     atomic_write_csv(agg, out_summary, note + ["d_*_vs_random: criterion minus the mean of the random orders of the "
                                                "same participant (negative = better), mean and standard error over "
