@@ -601,7 +601,10 @@ class DirectionSolver:
 
     def _try(self, bb: _Basis, F: np.ndarray, rows: np.ndarray):
         """Positions in ``rows`` of the rows of ``F`` for which ``bb`` is optimal, and their w."""
-        Fr = F if rows.size == F.shape[0] else F[rows]
+        # the whole block without a copy only when ``rows`` is the identity: after a HiGHS solve the rows
+        # arrive as [solved row, other open rows], a permutation of the block when every row is open
+        identity = rows.size == F.shape[0] and bool(np.all(rows == np.arange(rows.size)))
+        Fr = F if identity else F[rows]
         S = bb.CW @ Fr.T                               # (q + 1, rows): checks, then w
         q = bb.q
         if q:
