@@ -9,10 +9,10 @@ import argparse
 import resource
 import time
 
-from neckstrength.abc import ABCSettings, bootstrap_prior, estimate_strengths
-from neckstrength.cli import load_config
-from neckstrength.datasets import build_dataset
-from neckstrength.stages import build_directions, full_model_from_config, model_from_config
+from neckstrength.abc.algorithm4 import ABCSettings, estimate_strengths
+from neckstrength.config import build_directions, full_model_from_config, load_config, model_from_config
+from neckstrength.estimation.datasets import build_dataset
+from neckstrength.estimation.scaling import bootstrap_prior
 
 
 def main():

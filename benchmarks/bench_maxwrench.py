@@ -6,8 +6,8 @@ tied, so 12 free values for the 24 groups of s3m24, whose columns are
 ``hyoids-R, hyoids-L, SCM-R, ...``) takes a strength in
 ``{1 - s, 1, 1 + s} x baseline``: 3^12 = 531441 candidates x 25 directions =
 13.3 million LPs. A random sample of the LPs is solved with
-:func:`neckstrength.maxwrench.max_wrench` (one HiGHS call each; the reference),
-the whole grid with :func:`neckstrength.batched.max_wrench_batched`; the script
+:func:`neckstrength.wrench.max_wrench` (one HiGHS call each; the reference),
+the whole grid with :func:`neckstrength.wrench.batched.max_wrench_batched`; the script
 checks the batched ``w`` against HiGHS on the sample and prints rates, their
 ratio, HiGHS fallbacks and cached bases per direction, wall time and peak memory.
 
@@ -74,16 +74,17 @@ def main(argv=None) -> int:
                     help="also trace Python allocations during an extra, untimed batched run")
     args = ap.parse_args(argv)
 
-    from neckstrength.batched import BasisCache, max_wrench_batched
-    from neckstrength.cli import load_config
-    from neckstrength.maxwrench import max_wrench, max_wrench_batch
-    from neckstrength.model import load_full_model, named_model
-    from neckstrength.stages import build_directions, model_directions
+    from neckstrength.config import build_directions, load_config
+    from neckstrength.model.full import load_full_model
+    from neckstrength.model.reduction import named_model
+    from neckstrength.pipeline.common import model_directions
+    from neckstrength.wrench.batched import BasisCache, max_wrench_batched
+    from neckstrength.wrench.highs import max_wrench, max_wrench_batch
 
     os.chdir(ROOT)                                   # the config's paths are relative to the repository
     cfg = load_config(args.config)
     try:                                             # the pipeline's own loaders, where present
-        from neckstrength.stages import full_model_from_config, model_from_config
+        from neckstrength.config import full_model_from_config, model_from_config
 
         model = model_from_config(full_model_from_config(cfg), cfg, args.model)
     except ImportError:

@@ -52,9 +52,14 @@ def main(argv=None) -> int:
     os.chdir(ROOT)
     sys.path.insert(0, str(ROOT / "src"))
     from neckstrength import sequential as sq
-    from neckstrength.cli import load_config
-    from neckstrength.stages import build_directions, full_model_from_config, model_from_config
-    from neckstrength.stages_sequential import chapter6_dataset, chapter6_settings
+    from neckstrength.config import (
+        build_directions,
+        chapter6_settings,
+        full_model_from_config,
+        load_config,
+        model_from_config,
+    )
+    from neckstrength.pipeline.chapter6 import chapter6_dataset
 
     cfg = load_config(ROOT / "config" / "config.yaml")
     model = model_from_config(full_model_from_config(cfg), cfg, args.model)

@@ -27,8 +27,8 @@ import numpy as np
 
 
 def bench(model: str, n_candidates: int, cache: str, config: str) -> dict:
-    from neckstrength.maxwrench import solve_max_wrench
     from neckstrength.session import Entry, Session, SessionOptions
+    from neckstrength.wrench import solve
 
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
@@ -36,7 +36,7 @@ def bench(model: str, n_candidates: int, cache: str, config: str) -> dict:
                                                           n_candidates=n_candidates, cache=cache),
                           progress=lambda x: print(x, flush=True))
         t_start = time.perf_counter() - t0
-        w, _, _ = solve_max_wrench(s.model, 0.9 * s.model.strengths[None], s.sim.U)
+        w, _, _ = solve(s.model, 0.9 * s.model.strengths[None], s.sim.U)
         forces = w[0] / s.state.force_scale
         t_prop, t_step = [], []
         t = time.perf_counter()

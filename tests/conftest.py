@@ -1,6 +1,6 @@
 """Shared fixtures: one temporary copy of the workflow, and one run of the reduced (CI) pipeline in it.
 
-``tests/test_pipeline.py`` and ``tests/test_report.py`` both need the reduced pipeline's outputs; the session
+``tests/pipeline/test_pipeline.py`` and ``tests/report/test_report.py`` both need the reduced pipeline's outputs; the session
 fixture :func:`ci_pipeline` runs it once (about 2-3 minutes on 2 cores) for both. The copy never touches a user's
 ``results/``.
 """
@@ -45,8 +45,7 @@ def p2m7_full_config():
     """(full config, p2m7 model, the 25 test directions), built from the repository root."""
     import os
 
-    from neckstrength.cli import load_config
-    from neckstrength.stages import build_directions, full_model_from_config, model_from_config
+    from neckstrength.config import build_directions, full_model_from_config, load_config, model_from_config
 
     cwd = os.getcwd()
     os.chdir(ROOT)

@@ -4,8 +4,8 @@ from pathlib import Path
 
 import pytest
 
-from neckstrength.geometry import read_test_points
 from neckstrength.io import DataValidationError, read_activations, read_measurements
+from neckstrength.model.geometry import read_test_points
 
 ROOT = Path(__file__).resolve().parents[1]
 A2 = ROOT / "data" / "thesis" / "table_A2_max_force.csv"

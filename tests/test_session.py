@@ -11,8 +11,7 @@ from pathlib import Path
 import pytest
 
 from neckstrength.io import MAX_PLAUSIBLE_FORCE_N
-from neckstrength.session import (InputError, SessionLog, effective_entries, parse_activations, parse_entry,
-                                  parse_force)
+from neckstrength.session import InputError, SessionLog, effective_entries, parse_activations, parse_entry, parse_force
 
 pexpect = pytest.importorskip("pexpect")
 

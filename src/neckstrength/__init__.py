@@ -1,27 +1,25 @@
-"""neckstrength: model-based inference of individual neck muscle strengths.
+"""neckstrength: model-based inference of individual neck muscle strengths
+=========================================================================
 
-After the thesis in ``shared/seed`` (multi-directional isometric neck strength,
-ABC strength estimation, entropy-reducing sequential test selection).
-Modules (import downward only):
+After the thesis in ``shared/seed`` (multi-directional isometric neck strength, ABC strength estimation,
+entropy-reducing sequential test selection). Subpackages, each importing downward only:
 
-- :mod:`neckstrength.io`         data loading and validation (named file/row/field errors)
-- :mod:`neckstrength.model`      full musculoskeletal model tables, kinematic/muscle reduction
-- :mod:`neckstrength.geometry`   skull frame, test directions, unit wrenches, Jacobians
-- :mod:`neckstrength.maxwrench`  the max-wrench linear program (thesis Eq. 4.1 / 5.2)
+- :mod:`neckstrength.io`          reading and validating tables (errors name file, row and field), atomic writers
+- :mod:`neckstrength.config`      the only reader of the config dict: loading, typed settings, seeds
+- :mod:`neckstrength.plotting`    shared plot helpers (radar grid, save)
+- :mod:`neckstrength.model`       full model, reduction (Sec. 4.2.1), geometry, optional OpenSim derivation
+- :mod:`neckstrength.wrench`      the max-wrench LP (Eq. 4.1 / 5.2) and its one entry, ``wrench.solve``
+- :mod:`neckstrength.estimation`  data sets, data discrepancy (Eq. 5.5-5.6), bootstrap scaling (Eq. 5.3)
+- :mod:`neckstrength.mfi`         Chapter 3: MFI reliability and group statistics
+- :mod:`neckstrength.surfaces`    Chapter 4: strength surfaces and claims
+- :mod:`neckstrength.abc`         Chapter 5: Algorithm 4, ABC-SMC, coverage
+- :mod:`neckstrength.sequential`  Chapter 6: candidates, posteriors, Algorithms 7-9, order analysis, joint estimator
+- :mod:`neckstrength.gap`         the sim-to-real gap diagnosis
+- :mod:`neckstrength.report`      scorecard, tolerances, run records
+- :mod:`neckstrength.pipeline`    Snakemake glue, one module per rules file (science never imports it)
+- :mod:`neckstrength.session`, :mod:`neckstrength.cli`   applications on top of config and science
+
+Importing the package has no side effects.
 """
 
 __version__ = "0.1.0"
-
-
-def _job_record() -> None:
-    # Inside a Snakemake rule script only: append run time / peak memory to the job's log at exit, read by the
-    # report's run-time table (neckstrength.runinfo). Does nothing anywhere else.
-    import sys
-
-    if getattr(sys.modules.get("__main__"), "snakemake", None) is not None:
-        from .runinfo import install_job_record
-
-        install_job_record()
-
-
-_job_record()

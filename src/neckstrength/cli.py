@@ -17,26 +17,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import yaml
 
-from .io import DataValidationError
-
-
-def load_config(path: str | Path) -> dict:
-    """Load a YAML config and validate it (defaults filled) against the workflow schema."""
-    path = Path(path)
-    with open(path) as fh:
-        cfg = yaml.safe_load(fh)
-    schema = path.resolve().parent.parent / "workflow" / "schemas" / "config.schema.yaml"
-    if schema.exists():
-        from snakemake.utils import validate
-
-        validate(cfg, str(schema))
-    return cfg
+from neckstrength.config import load_config
+from neckstrength.io import DataValidationError
 
 
 def _cmd_directions(args) -> int:
-    from .stages import stage_directions
+    from neckstrength.pipeline.model import stage_directions
 
     stage_directions(load_config(args.config), args.out)
     print(f"wrote {args.out}")
@@ -44,8 +31,10 @@ def _cmd_directions(args) -> int:
 
 
 def _cmd_max_wrench(args) -> int:
-    from .maxwrench import STATUS_CODES, max_wrench_batch
-    from .stages import build_directions, full_model_from_config, model_directions, model_from_config
+    from neckstrength.config import build_directions, full_model_from_config, model_from_config
+    from neckstrength.pipeline.common import model_directions
+    from neckstrength.wrench import solve
+    from neckstrength.wrench.problem import STATUS_CODES
 
     cfg = load_config(args.config)
     full = full_model_from_config(cfg)
@@ -66,7 +55,7 @@ def _cmd_max_wrench(args) -> int:
         if not keep.any():
             raise SystemExit(f"no direction named {args.direction}; known: {', '.join(d['name'])}")
         d, U = d[keep].reset_index(drop=True), U[keep]
-    w, alpha, status = max_wrench_batch(model, f[None, :], U)
+    w, alpha, status = solve(model, f[None, :], U, method="highs")
     out = pd.DataFrame({"direction": d["name"], "wrench": w[0], "force_N": w[0] / d["force_scale"].to_numpy(),
                         "status": [STATUS_CODES[s] for s in status[0]]})
     print(f"model {model.name}: {model.m} muscles, {model.n} coordinates")
@@ -75,8 +64,8 @@ def _cmd_max_wrench(args) -> int:
 
 
 def _cmd_validate(args) -> int:
-    from .geometry import read_test_points
-    from .io import read_activations, read_measurements
+    from neckstrength.io import read_activations, read_measurements
+    from neckstrength.model.geometry import read_test_points
 
     reader = {"measurements": read_measurements, "activations": read_activations,
               "points": read_test_points}[args.kind]
@@ -86,7 +75,7 @@ def _cmd_validate(args) -> int:
 
 
 def _cmd_derive(args) -> int:
-    from . import derive_opensim
+    from neckstrength.model.opensim import derive as derive_opensim
 
     argv = ["--osim", args.osim, "--out", args.out]
     if args.multifidus_osim:
@@ -95,7 +84,7 @@ def _cmd_derive(args) -> int:
 
 
 def _cmd_session(args) -> int:
-    from .session import InputError, Session, SessionOptions, parse_priorities, replay_csv, run_interactive
+    from neckstrength.session import InputError, Session, SessionOptions, parse_priorities, replay_csv, run_interactive
 
     try:
         if args.action == "resume":
@@ -113,8 +102,8 @@ def _cmd_session(args) -> int:
 
 
 def _cmd_diagnose(args) -> int:
-    from .stages import build_directions
-    from .stages_gap import DATASET_FILES, FIGURES, stage_gap_diagnose
+    from neckstrength.config import build_directions
+    from neckstrength.pipeline.gap import DATASET_FILES, FIGURES, stage_gap_diagnose
 
     cfg = load_config(args.config)
     if args.measurements:

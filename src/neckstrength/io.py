@@ -18,24 +18,15 @@ CSV conventions used throughout ``data/``:
 from __future__ import annotations
 
 import math
+import os
 import re
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
 import pandas as pd
-
-__all__ = [
-    "DataValidationError",
-    "Column",
-    "Schema",
-    "read_table",
-    "MEASUREMENT_SCHEMA",
-    "ACTIVATION_SCHEMA",
-    "read_measurements",
-    "read_activations",
-]
 
 
 class DataValidationError(ValueError):
@@ -237,13 +228,12 @@ def read_table(path: str | Path, schema: Schema) -> pd.DataFrame:
     return df
 
 
-# --- measurement files (Table A.2 / A.3 layout: one row per direction, one column per participant)
-
 #: Upper plausibility bound for a maximum isometric neck force, N. The largest
 #: value in Table A.2 is 329 N; published maximal neck strengths of strong adults
 #: stay below about 1 kN at the head, so 2000 N catches unit errors (kN vs N x1000,
 #: or N*m entered as N) without rejecting any plausible measurement.
 MAX_PLAUSIBLE_FORCE_N = 2000.0
+
 
 MEASUREMENT_SCHEMA = Schema(
     name="max-force measurements (Table A.2 layout)",
@@ -253,6 +243,7 @@ MEASUREMENT_SCHEMA = Schema(
                                                                    allow_missing=True, min_exclusive=True)),
                      (r"avg|sd", Column("", "float", "N", 0.0, MAX_PLAUSIBLE_FORCE_N, allow_missing=True))),
 )
+
 
 ACTIVATION_SCHEMA = Schema(
     name="normalised activation at max force (Table A.3 layout)",
@@ -301,3 +292,29 @@ def read_activations(path: str | Path, directions: Sequence[str] | None = None) 
             if d not in known:
                 raise DataValidationError(path, f"unknown test direction '{d}'", i + 1, None, "direction")
     return df.set_index("direction")[cols]
+
+
+def atomic_write_csv(df: pd.DataFrame, path: str | Path, header_lines: list[str] | None = None,
+                     float_format: str | None = None) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            for h in header_lines or []:
+                fh.write(f"# {h}\n")
+            df.to_csv(fh, index=False, float_format=float_format, lineterminator="\n")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_text(text: str, path: str | Path) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        fh.write(text)
+    os.replace(tmp, path)

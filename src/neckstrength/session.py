@@ -42,16 +42,27 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from .io import MAX_PLAUSIBLE_FORCE_N
-from .sequential import (Proposal, SequentialSettings, SequentialState, SimulatedSet, StrengthGrid, pdf_entropy,
-                         sample_prior, sim_key)
-
-__all__ = ["Entry", "InputError", "parse_entry", "parse_force", "parse_activations", "SessionLog", "Session",
-           "SessionOptions", "bar_chart", "run_interactive", "replay_csv", "where_to_push", "read_measurements_csv"]
+from neckstrength.io import MAX_PLAUSIBLE_FORCE_N
+from neckstrength.sequential.algorithms import (
+    Proposal,
+    SequentialSettings,
+    SequentialState,
+    SimulatedSet,
+    StrengthGrid,
+    pdf_entropy,
+    sample_prior,
+    sim_key,
+)
 
 HEADER = "session.json"
+
+
 LOG = "session.log.jsonl"
+
+
 MODELS = ("p2m7", "s3m24", "p3m12")
+
+
 HELP = """Commands:
   <force>                          force in N for the proposed direction, e.g. 142 or 142 N
   <force> act=MUSCLE:VALUE,...     the same with EMG activations in [0, 1], e.g. 142 act=TS-B:0.4,TS-E:0.7
@@ -62,8 +73,6 @@ HELP = """Commands:
   help                             this text
 Forces are in newtons, 0 < F <= {max:g} N. Ctrl-D pauses (resume with `neckstrength session resume --out DIR`)."""
 
-
-# --------------------------------------------------------------------------- input parsing and validation
 
 class InputError(ValueError):
     """A rejected line at the prompt; ``str(exc)`` is the message shown before the re-prompt."""
@@ -81,6 +90,8 @@ class Entry:
 
 _UNITS_OTHER = {"kn": "kN", "mn": "mN", "nm": "N m", "n.m": "N m", "n*m": "N m", "n-m": "N m", "n·m": "N m",
                 "lb": "lb", "lbs": "lb", "lbf": "lbf", "kg": "kg", "kgf": "kgf", "g": "g", "dan": "daN", "%": "%"}
+
+
 _NUM = r"[-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?"
 
 
@@ -197,8 +208,6 @@ def _split_act(text: str) -> tuple[str, str | None]:
     return text[:i].strip(), text[i:].strip()
 
 
-# --------------------------------------------------------------------------- the log
-
 class SessionLog:
     """Append-only JSON lines; each record is flushed and fsync'd before :meth:`append` returns."""
 
@@ -246,8 +255,6 @@ def effective_entries(records: Sequence[dict]) -> list[dict]:
             stack.pop()
     return stack
 
-
-# --------------------------------------------------------------------------- display helpers
 
 def bar_chart(labels: Sequence[str], values: Sequence[float], width: int = 30, mark: str | None = None,
               marks: Mapping[str, str] | None = None) -> str:
@@ -297,8 +304,6 @@ def where_to_push(directions: pd.DataFrame, spec_csv: str | Path | None) -> dict
     return out
 
 
-# --------------------------------------------------------------------------- the session
-
 @dataclass
 class SessionOptions:
     """Everything that fixes a session's numbers (written to ``session.json``)."""
@@ -318,10 +323,14 @@ class Session:
     """One participant's session in folder ``out`` (header, log, outputs)."""
 
     def __init__(self, out: str | Path, opts: SessionOptions, progress: Callable[[str], None] = print):
-        from .cli import load_config
-        from .datasets import model_directions_table
-        from .stages import build_directions, full_model_from_config, model_from_config
-        from .stages_sequential import chapter6_settings
+        from neckstrength.config import (
+            build_directions,
+            chapter6_settings,
+            full_model_from_config,
+            load_config,
+            model_from_config,
+        )
+        from neckstrength.estimation.datasets import model_directions_table
 
         self.out = Path(out)
         self.opts = opts
@@ -571,7 +580,7 @@ class Session:
     def write_summary(self) -> tuple[Path, Path]:
         """``summary.csv`` (estimate per muscle) and ``summary.png``; also ``steps.csv`` and ``measurements.csv``
         (the measurements in order, in the format :func:`replay_csv` reads)."""
-        from .stages import atomic_write_csv
+        from neckstrength.io import atomic_write_csv
 
         e = self.estimate()
         hdr = [f"clinician session: participant {self.opts.participant}, model {self.model.name}, "
@@ -584,7 +593,7 @@ class Session:
         rows = []
         steps = list(self.state.steps)
         cum = np.zeros_like(self.state.log_prior)
-        from .sequential import pdf_moments, posterior_from_loglik
+        from neckstrength.sequential.algorithms import pdf_moments, posterior_from_loglik
         for t in range(len(steps) + 1):
             if t:
                 cum = cum + steps[t - 1].loglik
@@ -633,8 +642,6 @@ def _summary_figure(traj: pd.DataFrame, est: pd.DataFrame, path: Path, title: st
     plt.close(fig)
     os.replace(tmp, path)
 
-
-# --------------------------------------------------------------------------- drivers
 
 def run_interactive(session: Session, input_fn: Callable[[str], str] = input, out=sys.stdout) -> int:
     """The prompt loop. Returns 0 on stop, 3 when paused (end of input)."""

@@ -7,7 +7,7 @@ import re
 from snakemake.exceptions import WorkflowError
 from neckstrength.io import DataValidationError
 from neckstrength.mfi import read_mfi
-from neckstrength.mfi.stages import dataset_label, is_synthetic
+from neckstrength.pipeline.chapter3 import dataset_label, is_synthetic
 
 if not is_synthetic(config):
     try:

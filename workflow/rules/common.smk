@@ -9,7 +9,7 @@ validate(config, "../schemas/config.schema.yaml")
 # before any job starts, so no existing output is removed or overwritten.
 from snakemake.exceptions import WorkflowError
 from neckstrength.io import DataValidationError, read_activations, read_measurements
-from neckstrength.geometry import read_point_spec, read_test_points
+from neckstrength.model.geometry import read_point_spec, read_test_points
 
 try:
     read_measurements(config["data"]["measurements"])
@@ -151,8 +151,8 @@ def report_outputs():
 
 def scorecard_inputs():
     # the thesis comparison tables among the final outputs of every chapter, as selected by the registry
-    # neckstrength.scorecard.SOURCES (plus the sibling files its loaders read)
-    from neckstrength.scorecard import scorecard_inputs as select
+    # neckstrength.report.scorecard.SOURCES (plus the sibling files its loaders read)
+    from neckstrength.report.scorecard import scorecard_inputs as select
 
     return select([f for f in final_outputs() if f not in REPORT_OUTPUTS])
 
@@ -164,7 +164,7 @@ def runtime_inputs():
 
 def report_software_versions():
     # a param of the environment rule, so that a changed package version re-runs it
-    from neckstrength.runinfo import software_versions
+    from neckstrength.report.runinfo import software_versions
 
     return software_versions()
 

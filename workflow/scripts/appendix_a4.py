@@ -1,8 +1,10 @@
 # Thin rule script: reads snakemake.input/output/config and calls one package function.
 import sys
 
-from neckstrength.stages import stage_appendix_a4
+from neckstrength.pipeline.appendix_a import stage_appendix_a4
+from neckstrength.report.runinfo import install_job_record
 
+install_job_record()  # run time and peak memory into the job's log (report)
 with open(snakemake.log[0], "w") as log:
     sys.stderr = sys.stdout = log
     stage_appendix_a4(snakemake.config, snakemake.input.directions, snakemake.input.baseline, snakemake.output.table, snakemake.output.figure)

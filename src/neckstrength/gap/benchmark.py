@@ -20,12 +20,10 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from ..abc import data_discrepancy
-from .diagnose import BlindData, DatasetDiagnosis, DiagnosisSettings, diagnose
-from .effects import EFFECTS, GapContext, available_effects, compose, effect_label, parse_label
-from .fit import Simulator, make_cache
-
-__all__ = ["BenchmarkSettings", "Case", "generate_cases", "blind", "score_benchmark", "run_benchmark"]
+from neckstrength.estimation.discrepancy import data_discrepancy
+from neckstrength.gap.diagnose import BlindData, DatasetDiagnosis, DiagnosisSettings, diagnose
+from neckstrength.gap.effects import EFFECTS, GapContext, available_effects, compose, effect_label, parse_label
+from neckstrength.gap.fit import Simulator, make_cache
 
 
 @dataclass(frozen=True)

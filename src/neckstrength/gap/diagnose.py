@@ -40,13 +40,10 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from ..abc import data_discrepancy
-from ..geometry import PLANE_GRID, WRENCH_COMPONENTS
-from .effects import Effect, GapContext, available_effects, base_instance, compose, effect_label
-from .fit import FitSettings, Simulator, fit_strengths, make_cache, start_point
-
-__all__ = ["BlindData", "DiagnosisSettings", "DatasetDiagnosis", "diagnose", "direction_folds", "reach_envelope",
-           "emg_group_activation"]
+from neckstrength.estimation.discrepancy import data_discrepancy
+from neckstrength.gap.effects import Effect, GapContext, available_effects, base_instance, compose, effect_label
+from neckstrength.gap.fit import FitSettings, Simulator, fit_strengths, make_cache, start_point
+from neckstrength.model.geometry import PLANE_GRID, WRENCH_COMPONENTS
 
 
 @dataclass(frozen=True)

@@ -35,14 +35,10 @@ from typing import ClassVar, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from ..geometry import PLANAR_INDEX, WRENCH_COMPONENTS, jacobian_transpose
-from ..model import COORDINATES, KINEMATIC_VARIANTS, FullModel, ReducedModel
+from neckstrength.model.full import COORDINATES, KINEMATIC_VARIANTS, FullModel
+from neckstrength.model.geometry import PLANAR_INDEX, WRENCH_COMPONENTS, jacobian_transpose
+from neckstrength.model.reduction import ReducedModel
 
-__all__ = ["Param", "GapContext", "Instance", "Effect", "EFFECTS", "available_effects", "base_instance", "compose",
-           "effect_label", "parse_label"]
-
-
-# --------------------------------------------------------------------------- context and instance
 
 @dataclass(frozen=True)
 class Param:
@@ -141,7 +137,7 @@ class Instance:
         return model.task_direction(self.U6.reshape(-1, 6))
 
     def reduced(self, model: ReducedModel) -> ReducedModel:
-        """This instance as a :class:`ReducedModel` for :func:`neckstrength.maxwrench.solve_max_wrench`."""
+        """This instance as a :class:`ReducedModel` for :func:`neckstrength.wrench.solve`."""
         name = model.name + ("" if not self.labels else "+" + "+".join(self.labels))
         return replace(model, name=name, coordinates=self.rows, muscle_names=self.cols,
                        strengths=self.strengths(model.strengths[None, :])[0], moment_arms=self.R, JT=self.JT,
@@ -197,8 +193,6 @@ def _wrench(P: np.ndarray, N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     s = np.linalg.norm(W, axis=1)
     return W / s[:, None], 1.0 / s
 
-
-# --------------------------------------------------------------------------- registry
 
 #: name -> effect class; filled by :meth:`Effect.__init_subclass__`.
 EFFECTS: dict[str, type["Effect"]] = {}
@@ -314,8 +308,6 @@ def effect_label(names: Sequence[str]) -> str:
 def parse_label(label: str) -> list[str]:
     return [] if label == "none" else label.split("+")
 
-
-# --------------------------------------------------------------------------- effects
 
 class CoContraction(Effect):
     """Floor ``c`` on the activation of every muscle (Sec. 5.4, Appendix A.1: the measured co-activation

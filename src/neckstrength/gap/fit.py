@@ -5,7 +5,7 @@ Loss of one problem (a data set restricted to its training directions):
     L(phi) = sum_k w_k (F_k(phi) / F_meas,k - 1)^2 + ridge * |phi - phi_0|^2,    f = exp(phi)[pidx]
 
 with ``F_k`` the predicted maximum force of test k (the exact max-wrench LP, Eq. 4.1 / 5.2, solved by
-:func:`neckstrength.maxwrench.solve_max_wrench`), ``w_k`` = 1 for training and 0 for held-out directions,
+:func:`neckstrength.wrench.solve`), ``w_k`` = 1 for training and 0 for held-out directions,
 ``phi`` the log free strengths (left and right tied where the Chapter 5 settings tie them) within
 ``bounds_rel`` x the start, and a weak ridge towards the start ``phi_0`` (the baseline strengths scaled to
 the training forces, the analogue of Eq. 5.3) that only decides strengths the training directions leave
@@ -25,11 +25,10 @@ from typing import Callable
 
 import numpy as np
 
-from ..abc import free_parameters
-from ..maxwrench import STATUS_CODES, solve_max_wrench
-from .effects import GapContext, Instance
-
-__all__ = ["FitSettings", "Simulator", "FitResult", "fit_strengths", "start_point", "make_cache"]
+from neckstrength.estimation.parameters import free_parameters
+from neckstrength.gap.effects import GapContext, Instance
+from neckstrength.wrench import solve
+from neckstrength.wrench.problem import STATUS_CODES
 
 _OPT = {v: k for k, v in STATUS_CODES.items()}["optimal"]
 
@@ -51,7 +50,7 @@ def make_cache(max_bases: int = 512):
     Few bases per direction: the fits move through a small neighbourhood, and a cache per model instance
     is dropped with it, which bounds memory."""
     try:
-        from ..batched import BasisCache
+        from neckstrength.wrench.batched import BasisCache
     except ImportError:  # pragma: no cover
         return None
     return BasisCache(max_bases=max_bases, max_entries=100_000)
@@ -93,7 +92,7 @@ class Simulator:
         N, K, J = len(F), self.K, self.inst.J
         use = self.active if (active_only and J > 1) else np.ones((K, J), bool)
         sel = use.ravel()
-        w_s, alpha_s, status_s = solve_max_wrench(self.model, Fa, self.U[sel], self.lb[sel], self.ub[sel],
+        w_s, alpha_s, status_s = solve(self.model, Fa, self.U[sel], self.lb[sel], self.ub[sel],
                                                   return_alpha=return_alpha, chunk_size=self.chunk,
                                                   cache=self.cache)
         self.n_lp += w_s.size

@@ -8,10 +8,8 @@ from typing import Mapping
 import numpy as np
 import pandas as pd
 
-from ..plotting import PLANE_TITLES, _save, plt, radar_grid_series
-from .diagnose import DatasetDiagnosis
-
-__all__ = ["markdown_table", "write_figures", "write_report", "activation_check"]
+from neckstrength.gap.diagnose import DatasetDiagnosis
+from neckstrength.plotting import PLANE_TITLES, _save, plt, radar_grid_series
 
 
 def markdown_table(df: pd.DataFrame, floatfmt: str = ".3g", max_rows: int | None = None) -> str:

@@ -12,7 +12,7 @@ data were never published.  This subpackage holds (import downward only):
                                        tests, estimated marginal means, Bonferroni pairwise comparisons
 - :mod:`neckstrength.mfi.tables`       Table 3.2 regenerated from data, thesis-vs-ours comparison
 - :mod:`neckstrength.mfi.plots`        Figs. 3.2-3.4
-- :mod:`neckstrength.mfi.stages`       one function per Snakemake rule
+- :mod:`neckstrength.pipeline.chapter3`       one function per Snakemake rule
 """
 
 from .schema import GROUPS, LEVELS, MFI_SCHEMA, QUARTILES, SIDES, read_mfi, validate_mfi_frame

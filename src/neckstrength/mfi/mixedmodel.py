@@ -43,7 +43,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from .schema import GROUPS, QUARTILES
+from neckstrength.mfi.schema import GROUPS, QUARTILES
 
 SATTERTHWAITE_NOTE = ("SPSS reports F tests with Satterthwaite denominator df (fractional) and pairwise t tests "
                       "with Satterthwaite df; statsmodels MixedLM has no Satterthwaite or Kenward-Roger "
@@ -51,20 +51,26 @@ SATTERTHWAITE_NOTE = ("SPSS reports F tests with Satterthwaite denominator df (f
                       "chi2(df)) and Wald z tests for pairwise contrasts (Bonferroni-adjusted). These p-values are "
                       "asymptotic and smaller than small-sample ones.")
 
+
 FIXED_FORMULA = "mfi ~ C(group, Sum) * C(quartile, Sum) * level_c + I(level_c ** 2) + age + female + bmi"
+
 
 #: patsy factor code -> effect name used in outputs and in the thesis comparison
 FACTOR_NAMES = {"C(group, Sum)": "group", "C(quartile, Sum)": "quartile", "level_c": "level",
                 "I(level_c ** 2)": "level^2", "age": "age", "female": "sex", "bmi": "BMI"}
 
+
 #: random-effect slope names -> model-frame columns
 SLOPE_COLUMNS = {"level": "level_c", "quartile": "quartile_c"}
+
 
 #: a random-effect variance below this fraction of the residual variance, or a random-effect correlation
 #: matrix with an eigenvalue below it, counts as a fit on the boundary of the parameter space
 BOUNDARY_TOL = 1e-3
 
+
 PAIRS = (("WAD", "Recovered"), ("WAD", "Control"), ("Recovered", "Control"))
+
 
 DEFAULT_RANDOM_EFFECTS = (
     {"slopes": ["level", "quartile"], "covariance": "unstructured"},
@@ -293,4 +299,3 @@ def random_effects_table(fit: MixedFit) -> pd.DataFrame:
                          "value": float(cov.iloc[i, j])})
     rows.append({"component": "residual variance", "term_1": "", "term_2": "", "value": float(fit.result.scale)})
     return pd.DataFrame(rows)
-

@@ -6,13 +6,14 @@ from pathlib import Path
 from typing import Mapping
 
 import matplotlib
-
-matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from .schema import GROUPS, LEVELS, QUARTILES  # noqa: E402
+from neckstrength.mfi.schema import GROUPS, LEVELS, QUARTILES
+
+matplotlib.use("Agg")
+
 
 GROUP_COLOURS = {"Control": "tab:blue", "Recovered": "tab:green", "WAD": "tab:red"}
 

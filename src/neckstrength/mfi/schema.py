@@ -21,18 +21,30 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..io import Column, DataValidationError, Schema, read_table
+from neckstrength.io import Column, DataValidationError, Schema, read_table
 
 GROUPS = ("Control", "Recovered", "WAD")          # Table 3.2 column order
+
+
 LEVELS = ("C3", "C4", "C5", "C6", "C7")
+
+
 QUARTILES = ("Q1", "Q2", "Q3", "Q4")              # Q1 medial .. Q4 lateral (Fig. 3.1)
+
+
 SIDES = ("L", "R")
+
+
 SEXES = ("F", "M")
+
 
 #: Attributes of a participant that must be identical on all of the participant's rows.
 PARTICIPANT_FIELDS = ("group", "sex", "age", "bmi", "ndi")
+
+
 #: One measurement is identified by these fields.
 KEY_FIELDS = ("participant", "side", "level", "quartile", "rater", "trial")
+
 
 MFI_SCHEMA = Schema(
     name="per-ROI muscle fat infiltration (Chapter 3)",

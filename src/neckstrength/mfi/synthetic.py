@@ -49,10 +49,11 @@ from typing import Mapping
 import numpy as np
 import pandas as pd
 
-from ..io import Column, Schema, read_table
-from .schema import GROUPS, LEVELS, QUARTILES, SIDES
+from neckstrength.io import Column, Schema, read_table
+from neckstrength.mfi.schema import GROUPS, LEVELS, QUARTILES, SIDES
 
 SYNTHETIC_LABEL = "SYNTHETIC"
+
 
 TABLE_3_1_SCHEMA = Schema(
     name="Table 3.1 demographics",
@@ -64,6 +65,7 @@ TABLE_3_1_SCHEMA = Schema(
              Column("ndi_sd", "float", None, 0, 100, allow_missing=True)),
     unique=("group",),
 )
+
 
 TABLE_3_2_SCHEMA = Schema(
     name="Table 3.2 MFI by group, level and quartile",

@@ -8,8 +8,8 @@ from typing import Mapping
 import numpy as np
 import pandas as pd
 
-from ..io import Column, Schema, read_table
-from .schema import GROUPS, LEVELS, QUARTILES
+from neckstrength.io import Column, Schema, read_table
+from neckstrength.mfi.schema import GROUPS, LEVELS, QUARTILES
 
 THESIS_STATISTICS_SCHEMA = Schema(
     name="statistics reported in the text of thesis Chapter 3",

@@ -1,0 +1,434 @@
+"""Sequential estimation on the *joint* posterior, with importance resampling (beyond the thesis, issue 7).
+
+The thesis's Algorithms 7-9 (:mod:`neckstrength.sequential`) keep one PDF per muscle: every test's likelihood
+factor (Eq. 6.5) is a marginal over the *prior* of the other muscles, so the candidates drawn once from the prior
+are all it ever needs. The price is that what earlier tests learned about muscle A never sharpens what a later
+test says about muscle B, and that a posterior far out in the prior's tail (a 75% deficit is a 4-sigma event
+under N(f_0, 0.3 f_0)) rests on the few prior candidates that happen to lie there.
+
+Here the posterior is the joint one, represented by weighted candidates (importance sampling, as the Chapter 5
+ABC):
+
+    p(f | w_1..t)  ∝  p_0(f) prod_s d(w_s; f),    d = exp(-(eps (w(f) - w_s) / w_s)^2)   (Eq. 5.5 / 6.4)
+
+with weights ``iw_k prod_s d_ks`` (``iw = p_0 / q`` for candidates drawn from a proposal q). No rejection step
+(Algorithm 8's q-percentile) is needed: the kernel weighs every candidate. When the effective sample size of the
+weights falls below ``resample_ess`` x N ("the prior sample becomes too thin"), new candidates are drawn from a
+defensive mixture ``q = (1 - lambda) LogNormal(mu, c^2 Sigma) + lambda p_0`` fitted to the current weighted
+candidates (mean and covariance of log f, inflated by ``c``); their maximum wrenches in every direction are
+computed with the batched solver and their weights ``p_0 / q prod_s d`` recomputed from all tests so far. The
+defensive prior share bounds ``iw <= 1 / lambda``. A test that alone would collapse the ESS (a measurement the
+model cannot fit: the participants) is brought in by tempering, ``d^phi`` with phi rising to 1 in up to
+``max_resamples`` steps, each chosen so that the ESS at most halves, with a resample after each (adaptive SMC).
+
+Two criteria propose the next test on this posterior:
+
+- ``marginal_entropy``: Eq. 6.6/6.7 (the thesis's criterion) evaluated on the joint posterior: ``N_S``
+  posterior-predictive measurements per remaining direction (candidate drawn by weight, measurement noise of the
+  kernel), the posterior re-weighted by each, the mean over muscles of the drop of each muscle's marginal entropy
+  (histogram on the same :class:`~neckstrength.sequential.StrengthGrid` as Chapter 6).
+- ``joint_eig``: the expected information gain about the *joint* strength vector, the mutual information
+  ``I(f; y_i) = H(y_i) - H(y_i | f)``. With the kernel read as a Gaussian measurement error of ``log w`` (sd
+  ``1 / (eps sqrt 2)``, exact to first order in the relative error), ``H(y | f)`` is the noise entropy for every
+  producible candidate, so the gain is the entropy of the predictive distribution of the measurement (a weighted
+  histogram of ``log w_ki`` convolved with the noise) minus the noise entropy. Non-producible candidates form a
+  separate, noise-free outcome. It costs one histogram per direction.
+
+A ``random`` criterion (uniform over the remaining directions) is the baseline.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import pandas as pd
+from scipy.special import log_ndtr
+
+from neckstrength.model.reduction import ReducedModel
+from neckstrength.sequential.algorithms import StrengthGrid, activation_bounds, pdf_entropy, sample_prior
+from neckstrength.wrench import solve
+from neckstrength.wrench.problem import STATUS_CODES
+
+CRITERIA = ("marginal_entropy", "joint_eig", "random")
+
+
+_OPT = {v: k for k, v in STATUS_CODES.items()}["optimal"]
+
+
+@dataclass(frozen=True)
+class JointSettings:
+    """Settings of the joint sequential estimator (none of them is in the thesis; docs/chapter6.md)."""
+
+    n_candidates: int = 100_000     # N (like N_F)
+    prior_sd_rel: float = 0.3       # p_0 = N(f_0, (0.3 f_0)^2), truncated at 0 (as Chapter 6)
+    noise_rel: float = 0.10         # kernel sd of the relative (log) measurement error: d = exp(-delta^2 / (2 sd^2))
+    resample_ess: float = 0.05      # resample when ESS < resample_ess x N
+    defensive: float = 0.1          # prior share lambda of the proposal
+    inflate: float = 1.2            # proposal covariance = inflate^2 x weighted covariance of log f
+    max_resamples: int = 4          # per update: tempering steps, each followed by a resample (each one recomputes N x K wrenches)
+    n_moves: int = 2                # Metropolis-Hastings steps after each resample (0 = importance resampling only)
+    n_sim: int = 50                 # N_S for 'marginal_entropy'
+    max_particles: int = 20_000     # criteria use the heaviest candidates holding 1 - 1e-4 of the weight, at most this
+    n_ybins: int = 256              # predictive histogram for 'joint_eig' (at least 4 bins per noise sd)
+    n_bins: int = 50                # per-muscle PDF grid (as chapter6.n_bins)
+    bin_range_sd: float = 4.0
+    emg_band: float = 0.05          # measured activation +- band when activations are given as {muscle: value}
+
+    def __post_init__(self):
+        if not 0 < self.resample_ess <= 1:
+            raise ValueError("resample_ess must be in (0, 1]")
+        if not 0 < self.defensive < 1:
+            raise ValueError("defensive must be in (0, 1)")
+        if self.inflate <= 0 or self.noise_rel <= 0:
+            raise ValueError("inflate and noise_rel must be positive")
+
+    @property
+    def epsilon(self) -> float:
+        """Eq. 6.4's epsilon of the same kernel: exp(-(eps delta)^2) with eps = 1 / (noise_rel sqrt 2)."""
+        return 1.0 / (self.noise_rel * math.sqrt(2.0))
+
+    @property
+    def noise_sd(self) -> float:
+        """sd of log w equivalent to the kernel (first order in the relative error)."""
+        return self.noise_rel
+
+
+def relative_error(f_c: np.ndarray, f_true: np.ndarray) -> float:
+    """Mean over muscles of |f_c - f_a| / f_a."""
+    return float(np.mean(np.abs(np.asarray(f_c) - f_true) / f_true))
+
+
+class JointPosterior:
+    """Weighted candidates for the joint posterior of one data set, updated one measurement at a time.
+
+    ``update(direction, force, activations=None)`` adds a test (with activation bounds the candidates' wrenches
+    in that direction are recomputed within them, Algorithm 7 step 3); ``propose(criterion, rng)`` scores the
+    remaining directions; ``estimate()`` gives E / Var / marginal entropy per muscle.
+    """
+
+    def __init__(self, model: ReducedModel, directions: Sequence[str], U: np.ndarray, force_scale: np.ndarray,
+                 f0: np.ndarray, settings: JointSettings, rng: np.random.Generator, n_threads: int = 1,
+                 progress: Callable[[str], None] | None = None, cache=None):
+        from neckstrength.wrench.batched import BasisCache
+
+        self.model = model
+        self.directions = list(directions)
+        self.U = np.asarray(U, float)
+        self.force_scale = np.asarray(force_scale, float)
+        self.f0 = np.asarray(f0, float)
+        self.sd = settings.prior_sd_rel * self.f0
+        self.settings = settings
+        self.rng = rng
+        self.n_threads = n_threads
+        self.cache = BasisCache() if cache is None else cache   # share between runs on one model: bases reused
+        self.progress = progress
+        self.grid = StrengthGrid.around(self.f0, settings.prior_sd_rel, settings.n_bins, settings.bin_range_sd)
+        self.tests: list[dict] = []
+        self.n_resamples = 0
+        self.n_lps = 0
+        self.last_acceptance = float('nan')
+        self.F = sample_prior(self.f0, settings.prior_sd_rel, settings.n_candidates, rng)
+        self.log_iw = np.zeros(len(self.F))
+        self.W = self._wrenches(self.F)
+        self.loglik = np.zeros(len(self.F))
+
+    # -- densities
+    def log_prior(self, F: np.ndarray) -> np.ndarray:
+        """log p_0 (truncated normal per muscle, redrawn below 0 as :func:`sample_prior`)."""
+        z = (F - self.f0) / self.sd
+        c = -0.5 * math.log(2 * math.pi) - np.log(self.sd) - log_ndtr(self.f0 / self.sd)
+        return np.where(np.all(F > 0, axis=1), (-0.5 * z ** 2 + c).sum(axis=1), -np.inf)
+
+    # -- wrenches
+    def _wrenches(self, F: np.ndarray) -> np.ndarray:
+        w, _, st = solve(self.model, F, self.U, return_alpha=False, cache=self.cache,
+                                    n_threads=self.n_threads)
+        self.n_lps += w.size
+        W = np.where(st == _OPT, w, 0.0)
+        for t in self.tests:
+            if t["bounds"] is not None:
+                W[:, t["i"]] = self._bounded(F, t["i"], t["bounds"])
+        return W
+
+    def _bounded(self, F: np.ndarray, i: int, bounds) -> np.ndarray:
+        lb, ub = bounds
+        w, _, st = solve(self.model, F, self.U[i:i + 1], np.asarray(lb)[None], np.asarray(ub)[None],
+                                    return_alpha=False, n_threads=self.n_threads)
+        self.n_lps += w.size
+        return np.where(st[:, 0] == _OPT, w[:, 0], 0.0)
+
+    def _test_loglik(self, W_col: np.ndarray, w_meas: float) -> np.ndarray:
+        return -(self.settings.epsilon * (W_col - w_meas) / w_meas) ** 2
+
+    # -- state
+    @property
+    def tested(self) -> list[str]:
+        return [self.directions[t["i"]] for t in self.tests]
+
+    @property
+    def remaining(self) -> list[str]:
+        return [d for d in self.directions if d not in self.tested]
+
+    def weights(self) -> np.ndarray:
+        lw = self.log_iw + self.loglik
+        lw = lw - lw.max()
+        w = np.exp(lw)
+        return w / w.sum()
+
+    def ess_share(self) -> float:
+        w = self.weights()
+        return float(1.0 / (w ** 2).sum() / len(w))
+
+    def marginal_pdf(self, w: np.ndarray | None = None) -> np.ndarray:
+        w = self.weights() if w is None else w
+        fb = self.grid.index(self.F)
+        return np.stack([np.bincount(fb[:, j], weights=w, minlength=self.grid.n_bins) for j in range(self.model.m)])
+
+    def estimate(self) -> pd.DataFrame:
+        w = self.weights()
+        E = w @ self.F
+        V = w @ (self.F - E) ** 2
+        H = pdf_entropy(self.marginal_pdf(w), self.grid)
+        return pd.DataFrame({"muscle": list(self.model.muscle_names), "f_c": E, "v_c": V, "sd_c": np.sqrt(V),
+                             "entropy": H})
+
+    # -- update and resampling
+    def update(self, direction: str, force: float, activations=None) -> pd.DataFrame:
+        if direction not in self.directions:
+            raise ValueError(f"unknown direction {direction!r}; known: {self.directions}")
+        if direction in self.tested:
+            raise ValueError(f"direction {direction!r} has already been tested (each direction is tested once)")
+        i = self.directions.index(direction)
+        w_meas = float(force) * float(self.force_scale[i])
+        if not np.isfinite(w_meas) or w_meas <= 0:
+            raise ValueError(f"measured force must be positive, got {force!r}")
+        bounds = activation_bounds(activations, self.model.muscle_names, self.settings.emg_band)
+        if bounds is not None:
+            self.W[:, i] = self._bounded(self.F, i, bounds)
+        self.tests.append({"i": i, "w_meas": w_meas, "force": float(force), "bounds": bounds, "phi": 0.0})
+        self._temper_in(self.tests[-1])
+        return self.estimate()
+
+    def _ess_of(self, logw: np.ndarray) -> float:
+        lw = logw - logw.max()
+        w = np.exp(lw)
+        return float(w.sum() ** 2 / (w ** 2).sum() / len(w))
+
+    def _temper_in(self, t: dict) -> None:
+        """Add test ``t`` to the weights; if the ESS would fall below ``resample_ess``, bring it in by tempering
+        (its log-likelihood times phi, 0 < phi <= 1, each step chosen so that the ESS halves at most, then
+        resampled), up to ``max_resamples`` steps; the last step takes phi = 1 whatever the ESS."""
+        thr = self.settings.resample_ess
+        for _ in range(self.settings.max_resamples):
+            base = self.log_iw + self._loglik_all(exclude=t)
+            new = self._test_loglik(self.W[:, t["i"]], t["w_meas"])
+            if self._ess_of(base + new) >= thr:
+                t["phi"] = 1.0
+                break
+            lo, hi = t["phi"], 1.0
+            target = max(thr, 0.5 * self._ess_of(base + lo * new))
+            for _ in range(40):        # the ESS falls with phi: bisection for ESS(phi) = target
+                mid = 0.5 * (lo + hi)
+                if self._ess_of(base + mid * new) >= target:
+                    lo = mid
+                else:
+                    hi = mid
+            t["phi"] = lo
+            self.loglik = self._loglik_all()
+            self.resample()
+        else:
+            t["phi"] = 1.0
+        self.loglik = self._loglik_all()
+        t["ess_share"] = self.ess_share()
+
+    def _loglik_all(self, exclude: dict | None = None) -> np.ndarray:
+        out = np.zeros(len(self.F))
+        for t in self.tests:
+            if t is not exclude and t["phi"] > 0:
+                out += t["phi"] * self._test_loglik(self.W[:, t["i"]], t["w_meas"])
+        return out
+
+    def resample(self) -> None:
+        """Importance resampling, then resample-move: (1) new candidates from the defensive log-normal mixture
+        fitted to the current weights, weighted ``p_0 / q x likelihood``; (2) if ``n_moves`` > 0, multinomial
+        resampling by weight (equal weights after it) and ``n_moves`` Metropolis-Hastings steps per candidate
+        (random walk in log f, covariance 2.38^2 / m x the weighted covariance) on the current target, which
+        restore diversity where the posterior is too narrow for any fitted proposal."""
+        s = self.settings
+        N, m = self.F.shape
+        w = self.weights()
+        mu, C = self._log_moments(w)
+        Lc = np.linalg.cholesky(s.inflate ** 2 * C)
+        n_prior = self.rng.binomial(N, s.defensive)
+        Yn = mu + self.rng.standard_normal((N - n_prior, m)) @ Lc.T
+        F = np.vstack([np.exp(Yn), sample_prior(self.f0, s.prior_sd_rel, n_prior, self.rng)])
+        Yf = np.log(F)
+        Z = np.linalg.solve(Lc, (Yf - mu).T).T
+        log_ln = (-0.5 * (Z ** 2).sum(axis=1) - np.log(np.diag(Lc)).sum() - 0.5 * m * math.log(2 * math.pi)
+                  - Yf.sum(axis=1))
+        lp = self.log_prior(F)
+        log_q = np.logaddexp(math.log1p(-s.defensive) + log_ln, math.log(s.defensive) + lp)
+        self.F = F
+        self.log_iw = lp - log_q
+        self.W = self._wrenches(F)
+        self.loglik = self._loglik_all()
+        if s.n_moves > 0:
+            self._move(s.n_moves)
+        self.n_resamples += 1
+        if self.progress:
+            self.progress(f"resampled ({self.n_resamples}): ESS share now {self.ess_share():.3f}"
+                          + (f", MH acceptance {self.last_acceptance:.2f}" if s.n_moves > 0 else ""))
+
+    def _log_moments(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        Y = np.log(self.F)
+        mu = w @ Y
+        C = ((Y - mu) * w[:, None]).T @ (Y - mu) / max(1.0 - (w ** 2).sum(), 1e-12)
+        return mu, C + 1e-6 * np.eye(len(mu))
+
+    def _move(self, n_moves: int) -> None:
+        """Multinomial resampling, then random-walk Metropolis-Hastings in log f on p_0(f) prod d^phi."""
+        N, m = self.F.shape
+        w = self.weights()
+        _, C = self._log_moments(w)
+        idx = np.minimum(np.searchsorted(np.cumsum(w), self.rng.random(N) * w.sum(), side="right"), N - 1)
+        F, W = self.F[idx], self.W[idx]
+        logt = self.log_prior(F) + self._loglik_all_for(W)
+        L = np.linalg.cholesky((2.38 ** 2 / m) * C)
+        acc = 0
+        for _ in range(n_moves):
+            Fp = F * np.exp(self.rng.standard_normal((N, m)) @ L.T)
+            Wp = self._wrenches(Fp)
+            logtp = self.log_prior(Fp) + self._loglik_all_for(Wp)
+            # random walk in log f: the Jacobian of f = exp(y) enters the acceptance ratio
+            a = np.log(self.rng.random(N)) < (logtp - logt + np.log(Fp).sum(axis=1) - np.log(F).sum(axis=1))
+            F[a], W[a], logt[a] = Fp[a], Wp[a], logtp[a]
+            acc += int(a.sum())
+        self.last_acceptance = acc / (N * n_moves)
+        self.F, self.W = F, W
+        self.loglik = self._loglik_all()
+        self.log_iw = -self.loglik            # equal weights: the candidates are draws from the current target
+
+    def _loglik_all_for(self, W: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(W))
+        for t in self.tests:
+            if t["phi"] > 0:
+                out += t["phi"] * self._test_loglik(W[:, t["i"]], t["w_meas"])
+        return out
+
+    # -- criteria
+    def _heavy(self) -> tuple[np.ndarray, np.ndarray]:
+        w = self.weights()
+        o = np.argsort(w)[::-1]
+        c = np.cumsum(w[o])
+        n = min(int(np.searchsorted(c, 1.0 - 1e-4)) + 1, self.settings.max_particles, len(w))
+        sel = o[:n]
+        return sel, w[sel] / w[sel].sum()
+
+    def propose(self, criterion: str, rng: np.random.Generator) -> tuple[str, pd.DataFrame]:
+        """Score every remaining direction; returns the choice and a table (direction, score[, dS per muscle])."""
+        rem = self.remaining
+        if not rem:
+            raise ValueError("every direction has been tested")
+        idx = [self.directions.index(d) for d in rem]
+        if criterion == "random":
+            choice = rem[int(rng.integers(len(rem)))]
+            return choice, pd.DataFrame({"direction": rem, "score": np.nan})
+        sel, w = self._heavy()
+        if criterion == "joint_eig":
+            score = np.array([self._eig(self.W[sel, i], w) for i in idx])
+            df = pd.DataFrame({"direction": rem, "score": score})
+        elif criterion == "marginal_entropy":
+            dS = np.stack([self._marginal_dS(sel, w, i, rng) for i in idx])
+            df = pd.DataFrame(dS, columns=list(self.model.muscle_names))
+            df.insert(0, "direction", rem)
+            df["score"] = dS.mean(axis=1)
+        else:
+            raise ValueError(f"unknown criterion {criterion!r}; known: {CRITERIA}")
+        return rem[int(np.argmax(df["score"].to_numpy()))], df
+
+    def _eig(self, wi: np.ndarray, w: np.ndarray) -> float:
+        """I(f; y) for y = log w_i + N(0, noise_sd^2); a non-producible candidate's outcome is 'zero'."""
+        sd = self.settings.noise_sd
+        pos = wi > 0
+        p0 = float(w[~pos].sum())
+        if p0 >= 1.0:
+            return 0.0
+        y = np.log(wi[pos])
+        wp = w[pos] / w[pos].sum()
+        lo, hi = y.min() - 5 * sd, y.max() + 5 * sd
+        nb = max(self.settings.n_ybins, int(math.ceil((hi - lo) / (sd / 4))))
+        h = (hi - lo) / nb
+        hist = np.bincount(np.clip(((y - lo) / h).astype(int), 0, nb - 1), weights=wp, minlength=nb)
+        kx = np.arange(-int(math.ceil(5 * sd / h)), int(math.ceil(5 * sd / h)) + 1) * h
+        ker = np.exp(-0.5 * (kx / sd) ** 2)
+        p = np.convolve(hist, ker / ker.sum(), mode="same")
+        p = p[p > 0] / p.sum()
+        H_y = float(-(p * np.log(p)).sum() + math.log(h))
+        H_noise = 0.5 * math.log(2 * math.pi * math.e * sd ** 2)
+        H_b = 0.0 if p0 <= 0 else float(-(p0 * math.log(p0) + (1 - p0) * math.log(1 - p0)))
+        return H_b + (1.0 - p0) * (H_y - H_noise)
+
+    def _marginal_dS(self, sel: np.ndarray, w: np.ndarray, i: int, rng: np.random.Generator) -> np.ndarray:
+        """Eq. 6.6 on the joint posterior: entropy drop per muscle, mean over N_S predictive measurements."""
+        from scipy.sparse import csr_matrix
+
+        s = self.settings
+        wi = self.W[sel, i]
+        m, nb = self.model.m, self.grid.n_bins
+        fb = self.grid.index(self.F[sel]).astype(np.int64)
+        onehot = csr_matrix((np.ones(fb.size), (np.repeat(np.arange(len(sel)), m), (np.arange(m) * nb + fb).ravel())),
+                            shape=(len(sel), m * nb))
+        cur = (w @ onehot).reshape(m, nb)
+        S_c = pdf_entropy(cur, self.grid)
+        wpos = w * (wi > 0)
+        if wpos.sum() <= 0:
+            return np.zeros(m)
+        k = rng.choice(len(sel), size=s.n_sim, p=wpos / wpos.sum())
+        y = wi[k] * np.exp(s.noise_sd * rng.standard_normal(s.n_sim))
+        D = np.exp(-(s.epsilon * (wi[None, :] - y[:, None]) / y[:, None]) ** 2) * w[None, :]
+        D /= D.sum(axis=1, keepdims=True)
+        P = np.asarray((onehot.T @ D.T).T).reshape(s.n_sim, m, nb)
+        return S_c - pdf_entropy(P, self.grid).mean(axis=0)
+
+
+def run_joint(post: JointPosterior, measure: Callable[[str], tuple[float, object]], criterion: str,
+              rng: np.random.Generator, order: Sequence[str] | None = None, f_true: np.ndarray | None = None,
+              n_max: int | None = None, progress: Callable[[str], None] | None = None) -> pd.DataFrame:
+    """Algorithm 7 on the joint posterior: propose by ``criterion`` (or follow ``order``), measure, update.
+
+    Returns one row per iteration (0 = prior) and muscle: direction, E, Var, entropy, ESS share, resamples,
+    and the relative error when ``f_true`` is given.
+    """
+    rows = []
+
+    def record(t, d, score):
+        est = post.estimate()
+        est.insert(0, "iteration", t)
+        est.insert(1, "direction", d)
+        est["score"] = score
+        est["ess_share"] = post.ess_share()
+        est["n_resamples"] = post.n_resamples
+        if f_true is not None:
+            est["f_true"] = f_true
+            est["rel_error"] = np.abs(est["f_c"] - f_true) / f_true
+        rows.append(est)
+
+    record(0, "", np.nan)
+    n_max = n_max or len(post.directions)
+    while post.remaining and len(post.tests) < n_max:
+        if order is None:
+            d, tab = post.propose(criterion, rng)
+            score = float(tab.loc[tab["direction"] == d, "score"].iloc[0])
+        else:
+            d, score = order[len(post.tests)], np.nan
+        force, act = measure(d)
+        post.update(d, force, act)
+        record(len(post.tests), d, score)
+        if progress:
+            progress(f"[{criterion}] iteration {len(post.tests)}: {d}; mean entropy "
+                     f"{rows[-1]['entropy'].mean():.3f}, ESS share {post.ess_share():.3f}, resamples "
+                     f"{post.n_resamples}")
+    return pd.concat(rows, ignore_index=True)

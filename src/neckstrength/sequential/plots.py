@@ -1,0 +1,165 @@
+"""Chapter 6 figures: posteriors per muscle, iterations, order entropies, expected entropy reduction, radar."""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+
+def _muscle_axes(m: int, ncols: int = 4, size=(3.6, 2.9)):
+    import matplotlib.pyplot as plt
+
+    nrows = int(np.ceil(m / ncols))
+    fig, axes = plt.subplots(nrows, ncols, figsize=(size[0] * ncols, size[1] * nrows), squeeze=False)
+    for ax in axes.ravel()[m:]:
+        ax.set_visible(False)
+    return fig, axes.ravel()[:m]
+
+
+def _save(fig, out):
+    from neckstrength.plotting import _save as save
+
+    fig.tight_layout()
+    save(fig, out)
+
+
+def fig_posteriors(post: pd.DataFrame, est: pd.DataFrame, out, title: str, iterations: Sequence[int] | None = None,
+                   styles: Mapping[int, dict] | None = None) -> None:
+    """Figs. 6.4a / 6.5a / 6.9: posterior PDFs per muscle (prior green, truth red, E dashed)."""
+    import matplotlib.pyplot as plt
+
+    names = list(est["muscle"])
+    T = int(post["iteration"].max())
+    its = list(range(T + 1)) if iterations is None else list(iterations)
+    cmap = plt.get_cmap("viridis")
+    fig, axes = _muscle_axes(len(names))
+    for ax, n in zip(axes, names):
+        p = post[post["muscle"] == n]
+        for t in its:
+            q = p[p["iteration"] == t]
+            if styles and t in styles:
+                kw = dict(styles[t])
+            elif t == 0:
+                kw = {"color": "green", "lw": 1.5, "label": "prior"}
+            elif t == T:
+                kw = {"color": "blue", "lw": 2, "label": f"after {T}"}
+            else:
+                kw = {"color": cmap(t / max(T, 1)), "lw": 0.9, "alpha": 0.8, "label": f"after {t}"}
+            ax.plot(q["f"], q["density"], **kw)
+            mean = float((q["f"] * q["density"]).sum() / q["density"].sum())
+            ax.axvline(mean, color=kw.get("color"), ls="--", lw=0.8)
+        fa = est.loc[est["muscle"] == n, "f_actual"].iloc[0]
+        if np.isfinite(fa):
+            ax.axvline(fa, color="red", lw=1.5, label="actual f_a")
+        ax.set_title(n, fontsize=10)
+        ax.set_xlabel("strength (N)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0].legend(fontsize=6)
+    fig.suptitle(title, fontsize=10)
+    _save(fig, out)
+
+
+def fig_iterations(it: pd.DataFrame, out, title: str) -> None:
+    """Figs. 6.4b / 6.5b / 6.10: expected value (black) and variance (blue) per iteration."""
+    names = list(dict.fromkeys(it["muscle"]))
+    fig, axes = _muscle_axes(len(names))
+    for ax, n in zip(axes, names):
+        q = it[it["muscle"] == n].sort_values("iteration")
+        x = q["iteration"].to_numpy()
+        ax.plot(x, q["f_c"], "k-o", ms=3)
+        fa = q["f_actual"].iloc[0]
+        if np.isfinite(fa):
+            ax.axhline(fa, color="red", lw=1, ls=":")
+        ax.set_xticks(x)
+        ax.set_xticklabels(["prior"] + [str(int(v)) for v in q["direction_index"].iloc[1:]], fontsize=7)
+        ax.set_ylabel("E[f] (N)", fontsize=8)
+        ax2 = ax.twinx()
+        ax2.plot(x, q["v_c"], "b-s", ms=3)
+        ax2.set_ylabel("Var (N^2)", color="blue", fontsize=8)
+        ax2.tick_params(labelsize=7, colors="blue")
+        ax.set_title(n, fontsize=10)
+        ax.tick_params(labelsize=7)
+    fig.suptitle(title, fontsize=10)
+    _save(fig, out)
+
+
+def fig_order_entropy(orders: pd.DataFrame, out, title: str) -> None:
+    """Fig. 6.7: mean posterior entropy per iteration, selected order (red) vs every other order (box plots)."""
+    import matplotlib.pyplot as plt
+
+    cols = [c for c in orders.columns if c.startswith("H_")]
+    others = orders[~orders["selected"]][cols].to_numpy()
+    sel = orders[orders["selected"]][cols].to_numpy()[0]
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.boxplot([others[:, t] for t in range(len(cols))], positions=range(len(cols)), widths=0.5,
+               flierprops={"markersize": 2})
+    ax.plot(range(len(cols)), sel, "r-o", label="entropy-reducing sequence")
+    ax.set_xticks(range(len(cols)))
+    ax.set_xticklabels([str(t) for t in range(len(cols))])
+    ax.set_xlabel("number of measurements")
+    ax.set_ylabel("mean posterior entropy (nats)")
+    ax.legend()
+    ax.set_title(title, fontsize=9)
+    _save(fig, out)
+
+
+def fig_expected_dS(dS: pd.DataFrame, K: int, out, title: str) -> None:
+    """Fig. 6.8: stacked expected entropy reduction per direction (bars) and muscle (colours), per iteration."""
+    import matplotlib.pyplot as plt
+
+    its = sorted(dS["iteration"].unique())
+    names = list(dict.fromkeys(dS["muscle"]))
+    ncols = min(4, len(its))
+    nrows = int(np.ceil(len(its) / ncols))
+    fig, axes = plt.subplots(nrows, ncols, figsize=(3.6 * ncols, 2.8 * nrows), squeeze=False, sharey=True)
+    colors = plt.get_cmap("tab20" if len(names) > 10 else "tab10")
+    idx = np.arange(1, K + 1)
+    for ax, t in zip(axes.ravel(), its):
+        q = dS[dS["iteration"] == t]
+        piv = q.pivot(index="direction_index", columns="muscle", values="dS").reindex(idx)[names].fillna(0.0)
+        bottom_pos = np.zeros(K)
+        bottom_neg = np.zeros(K)
+        for j, n in enumerate(names):
+            v = piv[n].to_numpy()
+            base = np.where(v >= 0, bottom_pos, bottom_neg)
+            ax.bar(idx, v, bottom=base, color=colors(j % colors.N), label=n if t == its[0] else None, width=0.8)
+            bottom_pos += np.maximum(v, 0)
+            bottom_neg += np.minimum(v, 0)
+        avail = set(q["direction_index"])
+        sel = int(q.loc[q["selected"], "direction_index"].iloc[0])
+        ax.set_xticks(idx)
+        ax.set_xticklabels([str(i) for i in idx], fontsize=6 if K > 10 else 8)
+        for lab, i in zip(ax.get_xticklabels(), idx):
+            lab.set_color("green" if i == sel else ("black" if i in avail else "lightgrey"))
+        ax.set_title(f"iteration {t}: selected {sel}", fontsize=9)
+    for ax in axes.ravel()[len(its):]:
+        ax.set_visible(False)
+    fig.legend(loc="lower center", ncol=min(len(names), 8), fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout(rect=(0, 0.06 if len(names) <= 8 else 0.12, 1, 0.96))
+    from neckstrength.plotting import _save as save
+    save(fig, out)
+
+
+def fig_radar_sagittal(directions: pd.DataFrame, series, out, title: str) -> None:
+    """Fig. 6.6: one polar plot of the sagittal directions (angle of the test point in the sagittal plane)."""
+    import matplotlib.pyplot as plt
+
+    from neckstrength.model.geometry import plane_angle
+
+    recs = sorted(directions.to_dict("records"), key=lambda r: np.mod(plane_angle(r, "sagittal_mid"), 2 * np.pi))
+    th = np.array([np.mod(plane_angle(r, "sagittal_mid"), 2 * np.pi) for r in recs])
+    names = [r["name"] for r in recs]
+    idx = {r["name"]: int(r["sagittal_index"]) for r in recs}
+    fig, ax = plt.subplots(figsize=(6.5, 6.5), subplot_kw={"projection": "polar"})
+    for label, s_, kw in series:
+        v = np.array([s_.get(n, np.nan) for n in names], float)
+        ax.plot(np.r_[th, th[:1]], np.r_[v, v[:1]], label=label, **kw)
+    ax.set_xticks(th)
+    ax.set_xticklabels([f"{n} ({idx[n]})" for n in names], fontsize=8)
+    ax.tick_params(axis="y", labelsize=7)
+    ax.legend(loc="lower center", bbox_to_anchor=(0.5, -0.18), ncol=2, fontsize=8)
+    ax.set_title(title + " [N]", fontsize=9, pad=18)
+    _save(fig, out)

@@ -1,0 +1,122 @@
+"""Joint sequential estimator (beyond the thesis): importance weights, information gain, estimates, criteria."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from neckstrength import sequential as sq
+from neckstrength.estimation.datasets import simulated_dataset, thesis_f_actual
+from neckstrength.sequential.joint import JointPosterior, JointSettings, run_joint
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def setup(p2m7_full_config):
+    _, model, directions = p2m7_full_config
+    fa = thesis_f_actual(model, ROOT / "data" / "thesis", "Sim", table="table_6_1_p2m7_sequential.csv")
+    data = simulated_dataset(model, directions, "Sim", fa)
+    f0, _, _ = sq.scaled_baseline(model, data)
+    return model, data, f0
+
+
+def _post(setup, n=20000, seed=1, **kw):
+    model, data, f0 = setup
+    return JointPosterior(model, data.directions, data.U, data.force_scale, f0, JointSettings(n_candidates=n, **kw),
+                          np.random.default_rng(seed))
+
+
+def _measure(data):
+    return lambda d: (float(data.forces[data.directions.index(d)]), None)
+
+
+def test_resampling_weights_are_unbiased(setup):
+    """Resampled candidates with weights p_0 / q must represent the same distribution: with no test the weighted
+    mean and sd are the prior's (wrong weights, e.g. q / p_0, would shift them by the proposal's own spread)."""
+    model, data, f0 = setup
+    post = _post(setup, n=40000, inflate=1.5)
+    before = post.estimate()
+    post.resample()
+    after = post.estimate()
+    assert post.n_resamples == 1
+    assert np.all(np.abs(after["f_c"] - f0) / f0 < 0.01)
+    assert np.all(np.abs(after["sd_c"] / (0.3 * f0) - 1) < 0.06)
+    assert np.all(np.abs(before["f_c"] - after["f_c"]) / f0 < 0.015)
+    # after two tests: the posterior mean survives a resample within Monte Carlo error
+    post = _post(setup, n=40000)
+    for d in ("back", "chinFront"):
+        post.update(d, data.forces[data.directions.index(d)])
+    e1 = post.estimate()
+    post.resample()
+    e2 = post.estimate()
+    assert np.all(np.abs(e1["f_c"] - e2["f_c"]) < 0.25 * e1["sd_c"])
+    # after resample-move the candidates are draws from the target: equal weights, some moves accepted
+    assert post.ess_share() == pytest.approx(1.0)
+    assert 0.05 < post.last_acceptance < 0.95
+    # importance resampling alone: the weights are bounded by the defensive prior share, the mean survives
+    post = _post(setup, n=40000, n_moves=0)
+    for d in ("back", "chinFront"):
+        post.update(d, data.forces[data.directions.index(d)])
+    e1 = post.estimate()
+    post.resample()
+    assert np.exp(post.log_iw).max() <= 1.0 / post.settings.defensive + 1e-9
+    assert np.all(np.abs(e1["f_c"] - post.estimate()["f_c"]) < 0.25 * e1["sd_c"])
+
+
+def test_information_gain_gaussian_case(setup):
+    """For log w ~ N(mu, s^2) and Gaussian log-noise sd, I(f; y) = 0.5 log(1 + s^2 / sd^2)."""
+    post = _post(setup, n=1000)
+    rng = np.random.default_rng(3)
+    wi = np.exp(rng.normal(3.0, 0.3, 200_000))
+    w = np.full(len(wi), 1.0 / len(wi))
+    sd = post.settings.noise_sd
+    assert post._eig(wi, w) == pytest.approx(0.5 * math.log(1 + 0.09 / sd ** 2), abs=0.03)
+    assert post._eig(np.full(1000, 5.0), np.full(1000, 1e-3)) == pytest.approx(0.0, abs=0.02)
+    # a non-producible share adds the entropy of 'producible or not'
+    wi2 = wi.copy()
+    wi2[: len(wi) // 2] = 0.0
+    assert post._eig(wi2, w) > 0.5 * post._eig(wi, w)
+
+
+def test_joint_estimate_moves_to_truth_and_validates(setup):
+    model, data, f0 = setup
+    post = _post(setup)
+    it = run_joint(post, _measure(data), "joint_eig", np.random.default_rng(2), f_true=data.f_true)
+    err = it.groupby("iteration")["rel_error"].mean()
+    assert err.iloc[-1] < err.iloc[0]
+    H = it.groupby("iteration")["entropy"].mean()
+    assert H.iloc[-1] < H.iloc[0] - 0.2
+    est = post.estimate().set_index("muscle")
+    # TC-E is identified by the posterior pushes: within 10% of f_a (Table 6.1 'Sim': 275 N)
+    i = list(model.muscle_names).index("TC-E")
+    assert abs(est.loc["TC-E", "f_c"] - data.f_true[i]) / data.f_true[i] < 0.10
+    assert sorted(post.tested) == sorted(data.directions)
+    with pytest.raises(ValueError, match="already been tested"):
+        post.update("back", 100.0)
+    post2 = _post(setup, n=2000)
+    with pytest.raises(ValueError, match="positive"):
+        post2.update("back", -1.0)
+    with pytest.raises(ValueError, match="unknown direction"):
+        post2.update("nowhere", 10.0)
+
+
+def test_criteria_choose_informative_first_test(setup):
+    """Both criteria rank the remaining directions; their first choice is among the directions whose predictive
+    spread is largest, and the marginal-entropy table has one column per muscle."""
+    model, data, f0 = setup
+    post = _post(setup)
+    c1, t1 = post.propose("joint_eig", np.random.default_rng(0))
+    c2, t2 = post.propose("marginal_entropy", np.random.default_rng(0))
+    assert set(t1["direction"]) == set(data.directions)
+    assert list(t2.columns[1:-1]) == list(model.muscle_names)
+    spread = pd.Series({d: np.std(np.log(post.W[post.W[:, i] > 0, i])) for i, d in enumerate(data.directions)})
+    top = set(spread.sort_values(ascending=False).index[:3])
+    assert c1 in top
+    assert t1["score"].max() > 0 and t2["score"].max() > 0
+    with pytest.raises(ValueError, match="unknown criterion"):
+        post.propose("bogus", np.random.default_rng(0))
