@@ -23,16 +23,18 @@ from neckstrength.io import DataValidationError
 
 
 def _cmd_directions(args) -> int:
-    from neckstrength.pipeline.model import stage_directions
+    from neckstrength.config import build_directions
+    from neckstrength.io import atomic_write_csv
+    from neckstrength.model.geometry import DIRECTIONS_HEADER
 
-    stage_directions(load_config(args.config), args.out)
+    atomic_write_csv(build_directions(load_config(args.config)), args.out, DIRECTIONS_HEADER, float_format="%.6f")
     print(f"wrote {args.out}")
     return 0
 
 
 def _cmd_max_wrench(args) -> int:
     from neckstrength.config import build_directions, full_model_from_config, model_from_config
-    from neckstrength.pipeline.common import model_directions
+    from neckstrength.estimation.datasets import model_directions_table
     from neckstrength.wrench import solve
     from neckstrength.wrench.problem import STATUS_CODES
 
@@ -49,7 +51,7 @@ def _cmd_max_wrench(args) -> int:
         if unknown:
             raise DataValidationError(args.strengths, f"unknown muscles {sorted(unknown)}", field_name="muscle")
         f = np.array([lookup.get(m, fm) for m, fm in zip(model.muscle_names, f)])
-    d, U = model_directions(model, build_directions(cfg))
+    d, U = model_directions_table(model, build_directions(cfg))
     if args.direction:
         keep = d["name"].isin(args.direction).to_numpy()
         if not keep.any():
@@ -102,8 +104,16 @@ def _cmd_session(args) -> int:
 
 
 def _cmd_diagnose(args) -> int:
-    from neckstrength.config import build_directions
-    from neckstrength.pipeline.gap import DATASET_FILES, FIGURES, stage_gap_diagnose
+    from neckstrength.config import (
+        build_directions,
+        derive_rng,
+        diagnosis_settings,
+        gap_blind_dataset,
+        gap_context,
+        gap_settings_text,
+        gap_withheld_activations,
+    )
+    from neckstrength.gap.run import DATASET_FILES, FIGURES, run_diagnosis
 
     cfg = load_config(args.config)
     if args.measurements:
@@ -116,7 +126,13 @@ def _cmd_diagnose(args) -> int:
     outputs.update({f"fig_{k}": out / f"fig_{k}.png" for k in FIGURES})
     outputs.update({"summary": out / "summary.json", "report": out / "report.md"})
     try:
-        s = stage_gap_diagnose(cfg, model, args.dataset, build_directions(cfg), outputs)
+        directions = build_directions(cfg)
+        ctx = gap_context(cfg, model, directions)
+        data = gap_blind_dataset(cfg, ctx, directions, args.dataset)
+        settings = diagnosis_settings(cfg)
+        s = run_diagnosis(ctx, data, settings, derive_rng(cfg["seed"], f"gap/{model}/{args.dataset}"), directions,
+                          gap_withheld_activations(cfg, ctx, args.dataset), outputs,
+                          gap_settings_text(cfg, settings), model)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -1,19 +1,33 @@
-"""The configuration: loading, and the science objects and typed settings built from it."""
+"""The configuration: the only reader of the config dict
+=======================================================
+
+- :func:`load_config` loads and validates a YAML config (defaults from ``workflow/schemas/config.schema.yaml``).
+- :func:`select_settings` / :class:`Settings`: the settings one pipeline rule declares (its ``params``), as a
+  read-only view that refuses any undeclared key, so a rule cannot depend on a setting Snakemake does not see.
+- :func:`seed_sequence` / :func:`derive_rng`: every random stream of the project, derived from the config ``seed`` and
+  a stable text key (``numpy.random.SeedSequence([seed, crc32(key)])``).
+- ``*_from_config`` and ``*_settings``: the science objects and typed settings (dataclasses) built from a config.
+"""
 
 from __future__ import annotations
 
+import json
+import zlib
 from dataclasses import fields
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 import yaml
 
 from neckstrength.abc.algorithm4 import ABCSettings
+from neckstrength.estimation.datasets import build_dataset, model_directions_table, participant_dataset
 from neckstrength.gap.benchmark import BenchmarkSettings
-from neckstrength.gap.diagnose import DiagnosisSettings
+from neckstrength.gap.diagnose import BlindData, DiagnosisSettings
+from neckstrength.gap.effects import GapContext
 from neckstrength.gap.fit import FitSettings
+from neckstrength.io import read_activations
 from neckstrength.model.full import FullModel, load_full_model
 from neckstrength.model.geometry import (
     HeadEllipsoid,
@@ -39,6 +53,104 @@ def load_config(path: str | Path) -> dict:
 
         validate(cfg, str(schema))
     return cfg
+
+
+class UndeclaredSettingError(RuntimeError):
+    """A rule read a config setting that its ``params`` do not declare (so a change to it would not rerun it)."""
+
+
+class Settings(Mapping):
+    """Read-only view of the config settings a rule declared (dotted keys; a key declares its whole subtree).
+
+    Reading a declared key that the config does not set raises ``KeyError`` (so ``.get`` defaults work as with
+    the config itself); reading an undeclared key raises :class:`UndeclaredSettingError`.
+    """
+
+    def __init__(self, values: Mapping, declared: Sequence[str], rule: str = "?", _prefix: str = ""):
+        self._v, self._declared, self._rule, self._prefix = values, tuple(declared), rule, _prefix
+
+    def _covered(self, path: str) -> bool:  # path itself or one of its ancestors is declared
+        return any(path == d or path.startswith(d + ".") for d in self._declared)
+
+    def _on_path(self, path: str) -> bool:  # an ancestor of a declared key
+        return self._covered(path) or any(d.startswith(path + ".") for d in self._declared)
+
+    def __getitem__(self, key: str) -> Any:
+        path = f"{self._prefix}{key}"
+        if not self._on_path(path):
+            raise UndeclaredSettingError(
+                f"rule {self._rule} reads config setting '{path}' but does not declare it in its params "
+                f"(declared: {', '.join(self._declared) or 'none'})")
+        v = self._v[key]
+        if isinstance(v, Mapping):
+            return Settings(v, self._declared, self._rule, path + ".")
+        return v
+
+    def __iter__(self) -> Iterator[str]:
+        if self._prefix and not self._covered(self._prefix[:-1]):
+            raise UndeclaredSettingError(f"rule {self._rule} iterates over config section '{self._prefix[:-1]}' "
+                                         "but declares only some of its keys")
+        return iter([k for k in self._v if self._on_path(f"{self._prefix}{k}")])
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+    def to_dict(self) -> dict:
+        return {k: (v.to_dict() if isinstance(v, Settings) else v) for k, v in self.items()}
+
+
+def plain(x: Any) -> Any:
+    """A config value with every mapping (e.g. a :class:`Settings` view) turned into a plain dict, for JSON."""
+    if isinstance(x, Mapping):
+        return {k: plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [plain(v) for v in x]
+    return x
+
+
+def select_settings(config: Mapping, keys: Sequence[str]) -> dict:
+    """``{'keys': [...], 'values': {...}}``: the declared dotted ``keys`` and the config's values under them.
+
+    What a rule passes as ``params`` (Snakemake reruns a job when this changes) and its script turns into a
+    :class:`Settings` view with :func:`settings_view`. Keys the config does not set are declared but absent.
+    """
+    values: dict = {}
+    for key in keys:
+        node, parts = config, key.split(".")
+        for part in parts:
+            if not isinstance(node, Mapping) or part not in node:
+                break
+            node = node[part]
+        else:
+            tgt = values
+            for part in parts[:-1]:
+                tgt = tgt.setdefault(part, {})
+            tgt[parts[-1]] = node
+    return {"keys": sorted(set(keys)), "values": _sorted(values)}
+
+
+def _sorted(x: Any) -> Any:  # canonical order: reordering keys in a YAML file reruns nothing
+    if isinstance(x, Mapping):
+        return {k: _sorted(x[k]) for k in sorted(x, key=str)}
+    if isinstance(x, list):
+        return [_sorted(v) for v in x]
+    return x
+
+
+def settings_view(selected: Mapping, rule: str = "?") -> Settings:
+    """The :class:`Settings` view of what :func:`select_settings` returned (a rule's ``params.settings``)."""
+    return Settings(selected["values"], selected["keys"], rule)
+
+
+def seed_sequence(seed: int, key: str | bytes, *extra: int) -> np.random.SeedSequence:
+    """The one derivation of the project's random streams: ``SeedSequence([seed, crc32(key), *extra])``."""
+    key = key.encode() if isinstance(key, str) else key
+    return np.random.SeedSequence([int(seed), zlib.crc32(key), *extra])
+
+
+def derive_rng(seed: int, key: str | bytes, *extra: int) -> np.random.Generator:
+    """``numpy.random.default_rng(seed_sequence(seed, key, *extra))``."""
+    return np.random.default_rng(seed_sequence(seed, key, *extra))
 
 
 def full_model_from_config(config: Mapping) -> FullModel:
@@ -129,3 +241,60 @@ def joint_settings(config: Mapping, **over) -> JointSettings:
     kw.setdefault("emg_band", float(c.get("emg_band", 0.05)))
     kw.update(over)
     return JointSettings(**kw)
+
+
+# --- the sim-to-real gap diagnosis ---------------------------------------------------------------------------
+
+
+def gap_context(config: Mapping, model_name: str, directions: pd.DataFrame) -> GapContext:
+    g = config["gap"]
+    full = full_model_from_config(config)
+    model = model_from_config(full, config, model_name)
+    d, _ = model_directions_table(model, directions)
+    tie = g.get("tie_sides")
+    if tie is None:
+        tie = bool(config["chapter5"]["settings"].get(model_name, {}).get("tie_sides", False))
+    emg = tuple(config["chapter5"].get("emg_groups", {}).get(model_name, []))
+    return GapContext(full, model, d, np.asarray(config["geometry"]["head"]["centre"], float), emg,
+                      tuple(g["shoulder_muscles"]), bool(tie), dict(g.get("effect_settings") or {}))
+
+
+def gap_measurements_path(config: Mapping) -> str:
+    return config["gap"].get("measurements") or config["data"]["measurements"]
+
+
+def gap_blind_dataset(config: Mapping, ctx: GapContext, directions: pd.DataFrame, dataset: str) -> BlindData:
+    """Forces only: a participant column of the measurement table, or a simulated data set ('norm', 'weak')."""
+    c5 = dict(config["chapter5"], participant_emg="none")
+    if dataset in ("norm", "weak"):
+        data = build_dataset(ctx.model, directions, dataset, c5, config["data"]["thesis_dir"],
+                             gap_measurements_path(config), config["data"]["activations"])
+    else:
+        data = participant_dataset(ctx.model, directions, dataset, gap_measurements_path(config))
+    if list(data.directions) != list(ctx.directions["name"]):
+        raise ValueError("data set directions do not match the model's directions")
+    return BlindData(dataset, data.forces)
+
+
+def gap_withheld_activations(config: Mapping, ctx: GapContext, dataset: str) -> np.ndarray | None:
+    """Table A.3 column of ``dataset`` in direction order, or None when it has none (e.g. simulated)."""
+    path = config["data"].get("activations")
+    if not path or not Path(path).exists():
+        return None
+    act = read_activations(path)
+    if dataset not in act.columns:
+        return None
+    return act[dataset].reindex(ctx.directions["name"]).to_numpy(float)
+
+
+def gap_settings_text(config: Mapping, s: DiagnosisSettings) -> str:
+    g = config["gap"]
+    return "\n".join([f"- effects: {', '.join(s.effects)}",
+                      f"- effect settings: `{json.dumps(plain(g.get('effect_settings') or {}))}`",
+                      f"- grid points per effect: {s.grid_points}; folds: {s.folds}; starts per fit: {s.starts} "
+                      f"(spread {s.start_spread} in log strength); pairs of the best {s.pairs_top} effects on the "
+                      f"best {s.pair_grid_top} grid points of each",
+                      f"- fit: {json.dumps(plain(g['fit']))}; penalty {s.penalty} per extra parameter; bootstrap {s.bootstrap}",
+                      f"- effect-parameter refinement iterations (all-direction fit): {s.refine_iter}",
+                      f"- reach envelope: {s.reach_samples} samples, {s.reach_iter} gradient iterations",
+                      f"- seed {config['seed']}"])

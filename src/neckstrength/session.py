@@ -33,7 +33,6 @@ import re
 import sys
 import threading
 import time
-import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
@@ -42,6 +41,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from neckstrength.config import derive_rng, seed_sequence
 from neckstrength.io import MAX_PLAUSIBLE_FORCE_N
 from neckstrength.sequential.algorithms import (
     Proposal,
@@ -356,7 +356,7 @@ class Session:
         self.seed = int(cfg["seed"] if opts.seed is None else opts.seed)
         s = self.settings
         self.f0 = float(opts.prior_scale) * self.model.strengths
-        ss = np.random.SeedSequence([self.seed, zlib.crc32(f"session/{opts.model}".encode())])
+        ss = seed_sequence(self.seed, f"session/{opts.model}")
         F = sample_prior(self.f0, s.prior_sd_rel, s.n_candidates, np.random.default_rng(ss))
         grid = StrengthGrid.around(self.f0, s.prior_sd_rel, s.n_bins, s.bin_range_sd)
         self.key = sim_key(SimpleNamespace(F=F, U=U, grid=grid, iw=np.ones(len(F))))
@@ -502,13 +502,13 @@ class Session:
             return None
         key = tuple(sorted(self.state.tested))
         if key not in self._proposals:
-            rng = np.random.default_rng([self.seed, zlib.crc32(";".join(key).encode()), 6])
+            rng = derive_rng(self.seed, ";".join(key), 6)
             self._proposals[key] = self.state.propose(rng, self.gamma)
         return self._proposals[key]
 
     def first_score(self) -> float:
         if () not in self._proposals:
-            rng = np.random.default_rng([self.seed, zlib.crc32(b""), 6])
+            rng = derive_rng(self.seed, "", 6)
             self._proposals[()] = SequentialState(self.model, self.sim, self.state.force_scale,
                                                   self.settings).propose(rng, self.gamma)
         return float(self._proposals[()].table()["score"].max())

@@ -7,13 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from neckstrength.config import build_directions, load_config
+from neckstrength.config import build_directions, gap_context, load_config
 from neckstrength.gap import benchmark as bm
 from neckstrength.gap import diagnose as dg
 from neckstrength.gap.effects import EFFECTS, Effect, Param, available_effects, base_instance, compose
 from neckstrength.gap.fit import FitSettings, Simulator, fit_strengths, start_point
 from neckstrength.model.full import COORDINATES
-from neckstrength.pipeline.gap import gap_context
 
 ROOT = Path(__file__).resolve().parents[2]
 

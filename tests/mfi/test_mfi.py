@@ -215,25 +215,25 @@ def test_marginal_means_and_pairwise(medium_fit):
 
 def test_stages_end_to_end_on_thesis_sized_cohort(tmp_path):
     from neckstrength.pipeline.chapter3 import (
-        stage_mixed_model,
-        stage_reliability,
-        stage_synthetic_cohort,
-        stage_table_3_2,
-        stage_vs_thesis,
+        chapter3_mixed_model,
+        chapter3_reliability,
+        chapter3_synthetic_cohort,
+        chapter3_table_3_2,
+        chapter3_vs_thesis,
     )
 
     cfg = {**CFG, "chapter3": CFG["chapter3"], "data": {**CFG["data"], "thesis_dir": str(ROOT / "data/thesis")}}
     o = tmp_path
-    stage_synthetic_cohort(cfg, o / "mfi_cohort_SYNTHETIC.csv", o / "cal.csv")
+    chapter3_synthetic_cohort(cfg, o / "mfi_cohort_SYNTHETIC.csv", o / "cal.csv")
     head = (o / "mfi_cohort_SYNTHETIC.csv").read_text().splitlines()[0]
     assert "SYNTHETIC" in head
     assert f"seed={CFG['seed']}" in (o / "mfi_cohort_SYNTHETIC.csv").read_text()
     data = o / "mfi_cohort_SYNTHETIC.csv"
-    stage_reliability(cfg, data, o / "rel.csv", o / "f32.png")
-    stage_mixed_model(cfg, data, o / "tests.csv", o / "fixed.csv", o / "random.csv", o / "attempts.csv",
+    chapter3_reliability(cfg, data, o / "rel.csv", o / "f32.png")
+    chapter3_mixed_model(cfg, data, o / "tests.csv", o / "fixed.csv", o / "random.csv", o / "attempts.csv",
                       o / "emm.csv", o / "pw.csv", o / "f33.png")
-    stage_table_3_2(cfg, data, o / "t32.csv", o / "f34.png")
-    out = stage_vs_thesis(cfg, ROOT / CFG["chapter3"]["thesis_statistics"], o / "rel.csv", o / "tests.csv",
+    chapter3_table_3_2(cfg, data, o / "t32.csv", o / "f34.png")
+    out = chapter3_vs_thesis(cfg, ROOT / CFG["chapter3"]["thesis_statistics"], o / "rel.csv", o / "tests.csv",
                           o / "pw.csv", o / "t32.csv", o / "vs.csv", o / "vs.md")
     stats = read_thesis_statistics(ROOT / CFG["chapter3"]["thesis_statistics"])
     assert len(out) == len(stats) + 150                     # 21 reported statistics + 75 cells x (mean, SD)

@@ -44,7 +44,7 @@ def test_full_config_dry_run_lists_all_models(workdir):
     assert r.returncode == 0, r.stdout + r.stderr
     out = r.stdout + r.stderr
     # 6 kinematic x 4 muscle variants minus 3 planar sagittal_axial = 21 variants + 3 named models
-    assert "reduce_model" in out
+    assert "model_reduce" in out
 
 
 def test_reduced_pipeline_end_to_end(workdir, ci_pipeline):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from neckstrength.config import build_directions, full_model_from_config, load_config
+from neckstrength.estimation.datasets import model_directions_table
 from neckstrength.model.reduction import reduce_model, scale_strengths
-from neckstrength.pipeline.common import model_directions
 from neckstrength.surfaces.claims import evaluate_claims
 from neckstrength.surfaces.surfaces import activation_slopes, deep_extensor_mask, strength_surface
 from neckstrength.wrench.highs import max_wrench
@@ -37,7 +37,7 @@ def test_planar_lp_equals_pycapacity_force_polytope(setup):
 
     _, full, d = setup
     m = reduce_model(full, "p3", "anatomical", THESIS)
-    _, U = model_directions(m, d)
+    _, U = model_directions_table(m, d)
     P = pch.force_polytope(m.JT.T, m.moment_arms, np.zeros(m.m), m.strengths, 1e-4)
     for u in U:
         w = max_wrench(m.moment_arms, m.JT, m.strengths, u).w
@@ -52,7 +52,7 @@ def test_spatial_lp_equals_pycapacity_hyperplane_shift(setup):
 
     _, full, d = setup
     m = reduce_model(full, "s2", "sagittal", THESIS)
-    _, U = model_directions(m, d)
+    _, U = model_directions_table(m, d)
     H, dd = alg.hyper_plane_shift_method(m.moment_arms, np.zeros(m.m), m.strengths)
     H = np.asarray(H) @ m.JT
     dd = np.asarray(dd).ravel()

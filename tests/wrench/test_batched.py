@@ -169,9 +169,9 @@ def _load_real():
     """The real models and test directions, or None (with the reason) while data/model cannot be built."""
     try:
         from neckstrength.config import build_directions, load_config
+        from neckstrength.estimation.datasets import model_directions_table
         from neckstrength.model.full import load_full_model
         from neckstrength.model.reduction import named_model, reduce_model
-        from neckstrength.pipeline.common import model_directions
 
         cfg = copy.deepcopy(load_config(ROOT / "config" / "config.yaml"))
         for k in ("test_point_spec", "test_points"):
@@ -189,7 +189,7 @@ def _load_real():
         try:
             model = (reduce_model(full, "s7", "independent", name="s7") if name == "s7"
                      else named_model(full, name, ROOT / "data" / "thesis"))
-            _, U = model_directions(model, directions)
+            _, U = model_directions_table(model, directions)
             out[name] = (model, np.asarray(U, float))
         except Exception as e:  # noqa: BLE001
             why.append(f"{name}: {e}")

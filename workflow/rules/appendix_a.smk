@@ -21,6 +21,8 @@ rule appendix_a4:
             subcategory="strength measurements",
             labels={"figure": "A.4 radar"},
         ),
+    params:
+        settings=settings("appendix_a4", "data.measurements", "participants"),
     log:
         "logs/appendix_a/a4.log",
     threads: 1

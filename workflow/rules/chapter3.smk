@@ -53,8 +53,8 @@ rule chapter3_synthetic_cohort:
             labels={"table": "SYNTHETIC cohort calibration"},
         ),
     params:
-        seed=config["seed"],
-        synthetic=config["chapter3"]["synthetic"],
+        settings=settings("chapter3.loa_multiplier", "chapter3.reliability", "chapter3.synthetic",
+            "data.thesis_dir", "seed"),
     log:
         "logs/chapter3/synthetic_cohort.log",
     threads: 1
@@ -85,7 +85,7 @@ rule chapter3_reliability:
             labels={"figure": "3.2 reliability"},
         ),
     params:
-        reliability=config["chapter3"]["reliability"],
+        settings=settings("chapter3.data", "chapter3.loa_multiplier", "chapter3.reliability", "seed"),
     log:
         "logs/chapter3/{dataset}/reliability.log",
     wildcard_constraints:
@@ -129,7 +129,8 @@ rule chapter3_mixed_model:
             labels={"figure": "3.3 marginal means"},
         ),
     params:
-        mixed_model=config["chapter3"]["mixed_model"],
+        settings=settings("chapter3.data", "chapter3.mixed_model.emm", "chapter3.mixed_model.random_effects",
+            "chapter3.reliability.rater", "seed"),
     log:
         "logs/chapter3/{dataset}/mixed_model.log",
     wildcard_constraints:
@@ -162,6 +163,8 @@ rule chapter3_table_3_2:
             subcategory="{dataset}: Table 3.2",
             labels={"figure": "3.4 MFI maps"},
         ),
+    params:
+        settings=settings("chapter3.data", "chapter3.reliability.rater", "data.thesis_dir", "seed"),
     log:
         "logs/chapter3/{dataset}/table_3_2.log",
     wildcard_constraints:
@@ -191,6 +194,8 @@ rule chapter3_vs_thesis:
             labels={"table": "every reported statistic, thesis vs ours"},
         ),
         summary="results/chapter3/{dataset}/thesis_vs_ours.md",
+    params:
+        settings=settings("chapter3.data", "chapter3.mixed_model.alpha", "seed"),
     log:
         "logs/chapter3/{dataset}/vs_thesis.log",
     wildcard_constraints:

@@ -1,7 +1,7 @@
 # Chapter 4: strength surfaces across kinematic and muscle complexities, deep-extensor scaling.
 
 
-rule strength_surface:
+rule chapter4_surface:
     input:
         MODEL_TABLES,
         THESIS_TABLES,
@@ -9,6 +9,10 @@ rule strength_surface:
     output:
         strength="results/chapter4/{kinematic}/{muscles}/strength.csv",
         activation="results/chapter4/{kinematic}/{muscles}/activation.csv",
+    params:
+        settings=settings("chapter4.deep_extensor_group", "chapter4.factors", "chapter4.sweep",
+            "data.model_dir", "data.thesis_dir", "model.apply_b1_errata", "model.moment_arm_source",
+            "model.signature_tol_m", "model.unprinted_strengths"),
     log:
         "logs/chapter4/{kinematic}/{muscles}/surface.log",
     threads: 1
@@ -17,7 +21,7 @@ rule strength_surface:
     conda:
         "../envs/neckstrength.yaml"
     script:
-        "../scripts/strength_surface.py"
+        "../scripts/chapter4_surface.py"
 
 
 rule chapter4_reference_figures:
@@ -68,6 +72,10 @@ rule chapter4_reference_figures:
             subcategory="deep extensors",
             labels={"figure": "4.6b"},
         ),
+    params:
+        settings=settings("chapter4.deep_extensor_group", "chapter4.factors", "chapter4.reference_variant",
+            "data.model_dir", "data.thesis_dir", "model.apply_b1_errata", "model.moment_arm_source",
+            "model.unprinted_strengths"),
     log:
         "logs/chapter4/reference_figures.log",
     threads: 1
@@ -122,6 +130,9 @@ rule chapter4_claims:
             subcategory="claims",
             labels={"table": "Sec. 4.3-4.4 claims"},
         ),
+    params:
+        settings=settings("chapter4.anterior_max_azimuth_deg", "chapter4.claim_tolerance_rel",
+            "chapter4.reference_variant", "seed"),
     log:
         "logs/chapter4/claims.log",
     threads: 1

@@ -1,7 +1,7 @@
 # Chapter 5: ABC strength estimation (Algorithm 4), one rule instance per {model} x {dataset}.
 
 
-rule abc_estimate:
+rule chapter5_estimate:
     input:
         MODEL_TABLES,
         THESIS_TABLES,
@@ -16,6 +16,11 @@ rule abc_estimate:
         fit="results/chapter5/{model}/{dataset}/fit.csv",
         candidates="results/chapter5/{model}/{dataset}/candidates.csv",
         summary="results/chapter5/{model}/{dataset}/summary.json",
+    params:
+        settings=settings("chapter5.bootstrap_direction", "chapter5.emg_groups.{model}", "chapter5.eps_D",
+            "chapter5.epsilon", "chapter5.participant_emg", "chapter5.participant_emg_band", "chapter5.q",
+            "chapter5.settings.{model}", "chapter5.sigma_clip", "chapter5.simulated_emg",
+            "chapter5.simulated_emg_band", "chapter5.store_candidates", "data", "model", "seed"),
     log:
         "logs/chapter5/{model}/{dataset}/estimate.log",
     threads: 2
@@ -25,10 +30,10 @@ rule abc_estimate:
     conda:
         "../envs/neckstrength.yaml"
     script:
-        "../scripts/abc_estimate.py"
+        "../scripts/chapter5_estimate.py"
 
 
-rule abc_figures:
+rule chapter5_figures:
     input:
         directions="results/geometry/directions.csv",
         estimate="results/chapter5/{model}/{dataset}/estimate.csv",
@@ -81,10 +86,10 @@ rule abc_figures:
     conda:
         "../envs/neckstrength.yaml"
     script:
-        "../scripts/abc_figures.py"
+        "../scripts/chapter5_figures.py"
 
 
-rule abc_table:
+rule chapter5_table:
     input:
         estimates=chapter5_estimates,
         summaries=chapter5_summaries,
@@ -97,6 +102,7 @@ rule abc_table:
             labels={"model": "{named}", "table": "Table 5.x vs thesis"},
         ),
     params:
+        settings=settings("data.thesis_dir"),
         datasets=chapter5_dataset_list,
     log:
         "logs/chapter5/{named}/table.log",
@@ -106,10 +112,10 @@ rule abc_table:
     conda:
         "../envs/neckstrength.yaml"
     script:
-        "../scripts/abc_table.py"
+        "../scripts/chapter5_table.py"
 
 
-rule abc_smc:
+rule chapter5_smc:
     input:
         MODEL_TABLES,
         THESIS_TABLES,
@@ -125,6 +131,12 @@ rule abc_smc:
             labels={"model": "{model}", "dataset": "{dataset}", "table": "ABC-SMC vs Algorithm 4"},
         ),
         generations="results/chapter5/{model}/{dataset}/smc_generations.csv",
+    params:
+        settings=settings("chapter5.bootstrap_direction", "chapter5.emg_groups.{model}", "chapter5.eps_D",
+            "chapter5.epsilon", "chapter5.q", "chapter5.settings.{model}", "chapter5.sigma_clip",
+            "chapter5.simulated_emg", "chapter5.simulated_emg_band", "chapter5.smc.max_budget",
+            "chapter5.smc.n_particles", "chapter5.smc.prior_sigma", "chapter5.smc.quantile",
+            "chapter5.store_candidates", "data", "model", "seed"),
     log:
         "logs/chapter5/{model}/{dataset}/smc.log",
     threads: 1
@@ -134,10 +146,10 @@ rule abc_smc:
     conda:
         "../envs/neckstrength.yaml"
     script:
-        "../scripts/abc_smc.py"
+        "../scripts/chapter5_smc.py"
 
 
-rule abc_coverage:
+rule chapter5_coverage:
     input:
         MODEL_TABLES,
         THESIS_TABLES,
@@ -151,6 +163,12 @@ rule abc_coverage:
             subcategory="beyond the thesis",
             labels={"model": "{named}", "table": "posterior coverage"},
         ),
+    params:
+        settings=settings("chapter5.bootstrap_direction", "chapter5.coverage.noise",
+            "chapter5.coverage.replicates", "chapter5.eps_D", "chapter5.epsilon", "chapter5.q",
+            "chapter5.settings.{named}", "chapter5.sigma_clip", "chapter5.simulated_emg",
+            "chapter5.simulated_emg_band", "chapter5.store_candidates", "data.model_dir", "data.thesis_dir",
+            "model", "seed"),
     log:
         "logs/chapter5/{named}/coverage.log",
     threads: 1
@@ -159,4 +177,4 @@ rule abc_coverage:
     conda:
         "../envs/neckstrength.yaml"
     script:
-        "../scripts/abc_coverage.py"
+        "../scripts/chapter5_coverage.py"

@@ -2,7 +2,7 @@
 # {named} model x {dataset}; Table 6.1 and the stop points per model; beyond the thesis: orders vs random.
 
 
-rule sequential_run:
+rule chapter6_run:
     input:
         MODEL_TABLES,
         THESIS_TABLES,
@@ -19,6 +19,15 @@ rule sequential_run:
         fit="results/chapter6/{named}/{dataset}/fit.csv",
         bins="results/chapter6/{named}/{dataset}/bins.csv",
         summary="results/chapter6/{named}/{dataset}/summary.json",
+    params:
+        settings=settings("chapter6.alpha_min", "chapter6.bin_range_sd", "chapter6.bins_sensitivity",
+            "chapter6.compare_after", "chapter6.emg_band", "chapter6.emg_groups.{named}", "chapter6.epsilon",
+            "chapter6.gamma", "chapter6.likelihood", "chapter6.likelihood_floor",
+            "chapter6.model_settings.{named}", "chapter6.n_bins", "chapter6.n_candidates",
+            "chapter6.n_orders_sampled", "chapter6.n_sim", "chapter6.n_wbins", "chapter6.participant_emg",
+            "chapter6.participant_emg_band", "chapter6.predictive", "chapter6.prior_sd_rel", "chapter6.q",
+            "chapter6.simulated.{dataset}", "chapter6.simulated_emg", "chapter6.simulated_emg_band",
+            "chapter6.stop", "data", "model", "seed"),
     log:
         "logs/chapter6/{named}/{dataset}/run.log",
     threads: 1
@@ -31,7 +40,7 @@ rule sequential_run:
         "../scripts/chapter6_run.py"
 
 
-rule sequential_figures:
+rule chapter6_figures:
     input:
         directions="results/geometry/directions.csv",
         estimate="results/chapter6/{named}/{dataset}/estimate.csv",
@@ -95,7 +104,7 @@ rule sequential_figures:
         "../scripts/chapter6_figures.py"
 
 
-rule sequential_table:
+rule chapter6_table:
     input:
         estimates=chapter6_estimates,
         summaries=chapter6_summaries,
@@ -115,6 +124,7 @@ rule sequential_table:
             labels={"model": "{named}", "table": "stop points and late jumps"},
         ),
     params:
+        settings=settings("chapter6.thesis_table", "data.thesis_dir"),
         datasets=chapter6_dataset_list,
     log:
         "logs/chapter6/{named}/table.log",
@@ -127,7 +137,7 @@ rule sequential_table:
         "../scripts/chapter6_table.py"
 
 
-rule sequential_order_comparison:
+rule chapter6_order_comparison:
     input:
         MODEL_TABLES,
         THESIS_TABLES,
@@ -147,6 +157,13 @@ rule sequential_order_comparison:
             subcategory="beyond the thesis",
             labels={"figure": "entropy-reducing vs random orders"},
         ),
+    params:
+        settings=settings("chapter6.alpha_min", "chapter6.bin_range_sd", "chapter6.emg_band",
+            "chapter6.emg_groups", "chapter6.epsilon", "chapter6.likelihood", "chapter6.likelihood_floor",
+            "chapter6.model_settings", "chapter6.n_bins", "chapter6.n_candidates", "chapter6.n_sim",
+            "chapter6.n_wbins", "chapter6.order_comparison", "chapter6.predictive", "chapter6.prior_sd_rel",
+            "chapter6.q", "chapter6.simulated_emg", "chapter6.simulated_emg_band", "data.model_dir",
+            "data.thesis_dir", "model", "seed"),
     log:
         "logs/chapter6/order_comparison.log",
     threads: 1
@@ -159,7 +176,7 @@ rule sequential_order_comparison:
         "../scripts/chapter6_order_comparison.py"
 
 
-rule sequential_joint:
+rule chapter6_joint:
     input:
         MODEL_TABLES,
         THESIS_TABLES,
@@ -175,6 +192,11 @@ rule sequential_joint:
             labels={"model": "{named}", "data set": "{dataset}", "table": "joint posterior estimate"},
         ),
         summary="results/chapter6/{named}/{dataset}/joint_summary.json",
+    params:
+        settings=settings("chapter6.bin_range_sd", "chapter6.emg_band", "chapter6.emg_groups.{named}",
+            "chapter6.joint", "chapter6.n_bins", "chapter6.participant_emg", "chapter6.participant_emg_band",
+            "chapter6.prior_sd_rel", "chapter6.simulated.{dataset}", "chapter6.simulated_emg",
+            "chapter6.simulated_emg_band", "data", "model", "seed"),
     log:
         "logs/chapter6/{named}/{dataset}/joint.log",
     threads: 1
@@ -187,7 +209,7 @@ rule sequential_joint:
         "../scripts/chapter6_joint.py"
 
 
-rule sequential_criteria:
+rule chapter6_criteria:
     input:
         MODEL_TABLES,
         THESIS_TABLES,
@@ -208,6 +230,12 @@ rule sequential_criteria:
             subcategory="beyond the thesis",
             labels={"model": "{named}", "figure": "test-selection criteria"},
         ),
+    params:
+        settings=settings("chapter6.alpha_min", "chapter6.bin_range_sd", "chapter6.criteria_comparison",
+            "chapter6.emg_band", "chapter6.epsilon", "chapter6.joint", "chapter6.likelihood",
+            "chapter6.likelihood_floor", "chapter6.model_settings.{named}", "chapter6.n_bins",
+            "chapter6.n_candidates", "chapter6.n_sim", "chapter6.n_wbins", "chapter6.predictive",
+            "chapter6.prior_sd_rel", "chapter6.q", "data.model_dir", "data.thesis_dir", "model", "seed"),
     log:
         "logs/chapter6/criteria/{named}.log",
     threads: 1

@@ -249,3 +249,17 @@ def final_outputs():
     out += chapter3_outputs()
     out += report_outputs()
     return out
+
+
+# Every rule declares the config settings it reads (dotted keys, '{wildcard}' filled per job) as
+# `params: settings=settings(...)`, so Snakemake reruns exactly the jobs whose settings changed. The script
+# hands them to the package as a read-only view that refuses any undeclared key (neckstrength.config.Settings).
+from neckstrength.config import select_settings
+
+
+def settings(*keys):
+    def selected(wildcards):
+        wc = dict(wildcards.items())
+        return select_settings(config, [k.format(**wc) for k in keys])
+
+    return selected

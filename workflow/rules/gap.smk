@@ -2,7 +2,7 @@
 # withheld and compared afterwards), a pooled table over the data sets, and the withheld-effect benchmark.
 
 
-rule diagnose:
+rule gap_diagnose:
     input:
         MODEL_TABLES,
         THESIS_TABLES,
@@ -46,6 +46,11 @@ rule diagnose:
             subcategory="{model}",
             labels={"model": "{model}", "dataset": "{dataset}", "figure": "Table A.3 check"},
         ),
+    params:
+        settings=settings("chapter5", "data", "gap.bootstrap", "gap.effect_settings", "gap.effects", "gap.fit",
+            "gap.folds", "gap.grid_points", "gap.measurements", "gap.pair_grid_top", "gap.pairs_top",
+            "gap.penalty", "gap.reach_iter", "gap.reach_samples", "gap.refine_iter", "gap.shoulder_muscles",
+            "gap.start_spread", "gap.starts", "gap.tie_sides", "geometry.head.centre", "model", "seed"),
     log:
         "logs/gap/{model}/{dataset}/diagnose.log",
     threads: 1
@@ -113,6 +118,16 @@ rule gap_benchmark:
         effect_size="results/gap/{model}/benchmark/effect_size.csv",
         report="results/gap/{model}/benchmark/benchmark.md",
         summary="results/gap/{model}/benchmark/summary.json",
+    params:
+        settings=settings("chapter5.emg_groups.{model}", "chapter5.epsilon", "chapter5.settings.{model}",
+            "data.model_dir", "data.thesis_dir", "gap.benchmark.bootstrap", "gap.benchmark.clear_size",
+            "gap.benchmark.controls", "gap.benchmark.diagnosis_effects", "gap.benchmark.effects",
+            "gap.benchmark.folds", "gap.benchmark.noise_rel", "gap.benchmark.pairs",
+            "gap.benchmark.replicates", "gap.benchmark.starts", "gap.benchmark.strength_spread",
+            "gap.bootstrap", "gap.effect_settings", "gap.effects", "gap.fit", "gap.folds", "gap.grid_points",
+            "gap.pair_grid_top", "gap.pairs_top", "gap.penalty", "gap.reach_iter", "gap.reach_samples",
+            "gap.refine_iter", "gap.shoulder_muscles", "gap.start_spread", "gap.starts", "gap.tie_sides",
+            "geometry.head.centre", "model", "seed"),
     log:
         "logs/gap/{model}/benchmark.log",
     threads: 1

@@ -1,7 +1,7 @@
 # Foundation stage: full model, test directions, reduced models and their baseline strength.
 
 
-rule full_model:
+rule model_full:
     input:
         MODEL_TABLES,
         THESIS_TABLES,
@@ -14,6 +14,9 @@ rule full_model:
             subcategory="full model",
             labels={"table": "moment arms vs Table B.1"},
         ),
+    params:
+        settings=settings("data.model_dir", "data.thesis_dir", "model.apply_b1_errata",
+            "model.moment_arm_source", "model.unprinted_strengths", "seed"),
     log:
         "logs/model/full_model.log",
     threads: 1
@@ -22,10 +25,10 @@ rule full_model:
     conda:
         "../envs/neckstrength.yaml"
     script:
-        "../scripts/full_model.py"
+        "../scripts/model_full.py"
 
 
-rule directions:
+rule model_directions:
     input:
         geometry_inputs(),
     output:
@@ -36,6 +39,8 @@ rule directions:
             subcategory="geometry",
             labels={"table": "test directions"},
         ),
+    params:
+        settings=settings("geometry"),
     log:
         "logs/geometry/directions.log",
     threads: 1
@@ -44,10 +49,10 @@ rule directions:
     conda:
         "../envs/neckstrength.yaml"
     script:
-        "../scripts/directions.py"
+        "../scripts/model_directions.py"
 
 
-rule reduce_model:
+rule model_reduce:
     input:
         MODEL_TABLES,
         THESIS_TABLES,
@@ -55,6 +60,8 @@ rule reduce_model:
         params="results/model/{model}/parameters.csv",
         jacobian="results/model/{model}/jacobian_T.csv",
         groups="results/model/{model}/groups.csv",
+    params:
+        settings=settings("data.model_dir", "data.thesis_dir", "model", "seed"),
     log:
         "logs/model/{model}/reduce.log",
     threads: 1
@@ -63,10 +70,10 @@ rule reduce_model:
     conda:
         "../envs/neckstrength.yaml"
     script:
-        "../scripts/reduce_model.py"
+        "../scripts/model_reduce.py"
 
 
-rule compare_thesis_params:
+rule model_vs_thesis:
     input:
         MODEL_TABLES,
         THESIS_TABLES,
@@ -79,6 +86,8 @@ rule compare_thesis_params:
             subcategory="{named}",
             labels={"model": "{named}", "table": "reduced parameters vs thesis"},
         ),
+    params:
+        settings=settings("data.model_dir", "data.thesis_dir", "model"),
     log:
         "logs/model/{named}/compare_thesis.log",
     threads: 1
@@ -87,15 +96,17 @@ rule compare_thesis_params:
     conda:
         "../envs/neckstrength.yaml"
     script:
-        "../scripts/compare_thesis_params.py"
+        "../scripts/model_vs_thesis.py"
 
 
-rule baseline_strength:
+rule model_baseline_strength:
     input:
         params="results/model/{model}/parameters.csv",
         directions="results/geometry/directions.csv",
     output:
         "results/strength/{model}/baseline.csv",
+    params:
+        settings=settings("data.model_dir", "data.thesis_dir", "model"),
     log:
         "logs/strength/{model}/baseline.log",
     threads: 1
@@ -104,4 +115,4 @@ rule baseline_strength:
     conda:
         "../envs/neckstrength.yaml"
     script:
-        "../scripts/baseline_strength.py"
+        "../scripts/model_baseline_strength.py"

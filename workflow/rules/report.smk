@@ -3,7 +3,7 @@
 # the input functions (common.smk) enumerate the outputs of every chapter included before.
 
 
-rule scorecard:
+rule report_scorecard:
     input:
         scorecard_inputs(),
     output:
@@ -29,6 +29,8 @@ rule scorecard:
             labels={"table": "tolerances and their reasons"},
         ),
     params:
+        settings=settings("chapter3.mixed_model.alpha", "chapter4.anterior_max_azimuth_deg",
+            "chapter4.claim_tolerance_rel", "chapter5.eps_D", "seed"),
         tolerances=config["report"]["tolerances"],
     log:
         "logs/report/scorecard.log",
@@ -38,7 +40,7 @@ rule scorecard:
     conda:
         "../envs/neckstrength.yaml"
     script:
-        "../scripts/scorecard.py"
+        "../scripts/report_scorecard.py"
 
 
 rule report_environment:
@@ -51,6 +53,7 @@ rule report_environment:
             labels={"table": "software versions and seeds"},
         ),
     params:
+        settings=settings("chapter3.data", "chapter5.datasets", "chapter5.models", "seed"),
         seed=config["seed"],
         software=report_software_versions(),
     log:

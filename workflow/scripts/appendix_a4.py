@@ -1,10 +1,11 @@
-# Thin rule script: reads snakemake.input/output/config and calls one package function.
+# Thin rule script: reads snakemake.input/output/params and calls the pipeline function of the same name.
 import sys
 
-from neckstrength.pipeline.appendix_a import stage_appendix_a4
+from neckstrength.pipeline.appendix_a import appendix_a4
+from neckstrength.pipeline.common import rule_settings
 from neckstrength.report.runinfo import install_job_record
 
 install_job_record()  # run time and peak memory into the job's log (report)
 with open(snakemake.log[0], "w") as log:
     sys.stderr = sys.stdout = log
-    stage_appendix_a4(snakemake.config, snakemake.input.directions, snakemake.input.baseline, snakemake.output.table, snakemake.output.figure)
+    appendix_a4(rule_settings(snakemake), snakemake.input.directions, snakemake.input.baseline, snakemake.output.table, snakemake.output.figure)

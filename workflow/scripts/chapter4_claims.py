@@ -1,7 +1,8 @@
-# Thin rule script: reads snakemake.input/output/config and calls one package function.
+# Thin rule script: reads snakemake.input/output/params and calls the pipeline function of the same name.
 import sys
 
-from neckstrength.pipeline.chapter4 import stage_chapter4_claims
+from neckstrength.pipeline.chapter4 import chapter4_claims
+from neckstrength.pipeline.common import rule_settings
 from neckstrength.report.runinfo import install_job_record
 
 install_job_record()  # run time and peak memory into the job's log (report)
@@ -10,4 +11,4 @@ with open(snakemake.log[0], "w") as log:
     inp = snakemake.input
     variants = sorted({k.split("__")[0] for k in inp.keys() if "__" in k})
     surfaces = {v: (inp[f"{v}__strength"], inp[f"{v}__activation"]) for v in variants}
-    stage_chapter4_claims(snakemake.config, surfaces, inp.directions, inp.slopes, snakemake.output[0])
+    chapter4_claims(rule_settings(snakemake), surfaces, inp.directions, inp.slopes, snakemake.output[0])

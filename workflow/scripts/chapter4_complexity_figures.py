@@ -1,7 +1,8 @@
-# Thin rule script: reads snakemake.input/output/config and calls one package function.
+# Thin rule script: reads snakemake.input/output/params and calls the pipeline function of the same name.
 import sys
 
-from neckstrength.pipeline.chapter4 import stage_chapter4_complexity
+from neckstrength.pipeline.chapter4 import chapter4_complexity_figures
+from neckstrength.pipeline.common import rule_settings
 from neckstrength.report.runinfo import install_job_record
 
 install_job_record()  # run time and peak memory into the job's log (report)
@@ -10,5 +11,5 @@ with open(snakemake.log[0], "w") as log:
     inp = snakemake.input
     variants = sorted({k.split("__")[0] for k in inp.keys() if "__" in k})
     surfaces = {v: (inp[f"{v}__strength"], inp[f"{v}__activation"]) for v in variants}
-    stage_chapter4_complexity(snakemake.config, surfaces, inp.directions, snakemake.output.fig47,
+    chapter4_complexity_figures(rule_settings(snakemake), surfaces, inp.directions, snakemake.output.fig47,
                               snakemake.output.fig48)

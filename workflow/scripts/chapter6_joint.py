@@ -1,12 +1,13 @@
-# Thin rule script: reads snakemake.input/output/config and calls one package function.
+# Thin rule script: reads snakemake.input/output/params and calls the pipeline function of the same name.
 import sys
 
-from neckstrength.pipeline.chapter6 import stage_joint_run
+from neckstrength.pipeline.chapter6 import chapter6_joint
+from neckstrength.pipeline.common import rule_settings
 from neckstrength.report.runinfo import install_job_record
 
 install_job_record()  # run time and peak memory into the job's log (report)
 with open(snakemake.log[0], "w") as log:
     sys.stderr = sys.stdout = log
-    stage_joint_run(snakemake.config, snakemake.wildcards.named, snakemake.wildcards.dataset,
+    chapter6_joint(rule_settings(snakemake), snakemake.wildcards.named, snakemake.wildcards.dataset,
                     snakemake.input.directions, snakemake.output.iterations, snakemake.output.estimate,
                     snakemake.output.summary)

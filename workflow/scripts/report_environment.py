@@ -1,10 +1,11 @@
-# Thin rule script: reads snakemake.input/output/config and calls one package function.
+# Thin rule script: reads snakemake.input/output/params and calls the pipeline function of the same name.
 import sys
 
-from neckstrength.pipeline.report import stage_environment
+from neckstrength.pipeline.common import rule_settings
+from neckstrength.pipeline.report import report_environment
 from neckstrength.report.runinfo import install_job_record
 
 install_job_record()  # run time and peak memory into the job's log (report)
 with open(snakemake.log[0], "w") as log:
     sys.stderr = sys.stdout = log
-    stage_environment(snakemake.config, snakemake.output[0])
+    report_environment(rule_settings(snakemake), snakemake.output[0])

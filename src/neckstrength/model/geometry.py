@@ -46,6 +46,13 @@ AXIS_VECTORS = {"pitch": np.array([0.0, 0.0, 1.0]), "roll": np.array([1.0, 0.0, 
                 "yaw": np.array([0.0, 1.0, 0.0])}
 
 
+#: Header lines of a written direction table (``results/geometry/directions.csv``).
+DIRECTIONS_HEADER = ["test directions: points and outward normals (skull frame, m), unit wrenches "
+                     "u = (p x n, n)/|.| ordered (Mx,My,Mz,Fx,Fy,Fz)",
+                     "force_scale = |(p x n, n)|: force (N) = LP wrench magnitude / force_scale",
+                     "geometry is a reconstruction unless method = measured (docs/geometry.md)"]
+
+
 def skew(p: np.ndarray) -> np.ndarray:
     """Skew-symmetric matrix ``p^`` with ``p^ v = p x v`` (thesis Sec. 4.2.3.1)."""
     px, py, pz = p

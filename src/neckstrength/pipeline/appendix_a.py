@@ -11,7 +11,7 @@ from neckstrength.io import atomic_write_csv, read_measurements
 from neckstrength.pipeline.common import load_directions
 
 
-def stage_appendix_a4(config: Mapping, directions_csv: str | Path, baseline_csv: str | Path,
+def appendix_a4(config: Mapping, directions_csv: str | Path, baseline_csv: str | Path,
                       out_table: str | Path, out_fig: str | Path) -> pd.DataFrame:
     """Fig. A.4: measured strength of S003-S007 vs the baseline model scaled by Eq. 5.3."""
     from neckstrength.plotting import radar_grid

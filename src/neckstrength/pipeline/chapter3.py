@@ -49,7 +49,7 @@ def _primary(config: Mapping) -> tuple[str, int]:
     return str(rel.get("rater", "A")), 1
 
 
-def stage_synthetic_cohort(config: Mapping, out_csv: str | Path, out_calibration: str | Path) -> pd.DataFrame:
+def chapter3_synthetic_cohort(config: Mapping, out_csv: str | Path, out_calibration: str | Path) -> pd.DataFrame:
     """Draw the SYNTHETIC cohort (seed = config 'seed') and write it with its calibration table."""
     spec = CohortSpec.from_config(_c3(config))
     targets = load_targets(config["data"]["thesis_dir"])
@@ -77,7 +77,7 @@ def stage_synthetic_cohort(config: Mapping, out_csv: str | Path, out_calibration
     return df
 
 
-def stage_reliability(config: Mapping, data_csv: str | Path, out_table: str | Path,
+def chapter3_reliability(config: Mapping, data_csv: str | Path, out_table: str | Path,
                       out_fig: str | Path) -> pd.DataFrame:
     """Bland-Altman bias/LOA with CIs and ICC(2,1) for intra- and inter-rater pairs (Fig. 3.2)."""
     c3 = _c3(config)
@@ -99,7 +99,7 @@ def _label(config: Mapping) -> str:
     return f"dataset '{dataset_label(config)}'"
 
 
-def stage_mixed_model(config: Mapping, data_csv: str | Path, out_tests: str | Path, out_fixed: str | Path,
+def chapter3_mixed_model(config: Mapping, data_csv: str | Path, out_tests: str | Path, out_fixed: str | Path,
                       out_random: str | Path, out_attempts: str | Path, out_emm: str | Path,
                       out_pairwise: str | Path, out_fig: str | Path) -> mm.MixedFit:
     """Linear mixed model of Sec. 3.3.3: Wald tests, fixed/random effects, EMMs, pairwise (Fig. 3.3)."""
@@ -146,7 +146,7 @@ def stage_mixed_model(config: Mapping, data_csv: str | Path, out_tests: str | Pa
     return fit
 
 
-def stage_table_3_2(config: Mapping, data_csv: str | Path, out_table: str | Path,
+def chapter3_table_3_2(config: Mapping, data_csv: str | Path, out_table: str | Path,
                     out_fig: str | Path) -> pd.DataFrame:
     """Table 3.2 regenerated from the data beside the printed values, and the maps of Fig. 3.4."""
     df = read_mfi(data_csv)
@@ -161,7 +161,7 @@ def stage_table_3_2(config: Mapping, data_csv: str | Path, out_table: str | Path
     return t
 
 
-def stage_vs_thesis(config: Mapping, statistics_csv: str | Path, reliability_csv: str | Path, tests_csv: str | Path,
+def chapter3_vs_thesis(config: Mapping, statistics_csv: str | Path, reliability_csv: str | Path, tests_csv: str | Path,
                     pairwise_csv: str | Path, table32_csv: str | Path, out_csv: str | Path,
                     out_md: str | Path) -> pd.DataFrame:
     """Side-by-side table: each statistic the thesis reports next to ours (CSV and a Markdown summary)."""

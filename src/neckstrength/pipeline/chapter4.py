@@ -13,7 +13,7 @@ from neckstrength.io import atomic_write_csv
 from neckstrength.pipeline.common import load_directions
 
 
-def stage_strength_surface(config: Mapping, kinematic: str, muscles: str, directions_csv: str | Path,
+def chapter4_surface(config: Mapping, kinematic: str, muscles: str, directions_csv: str | Path,
                            out_strength: str | Path, out_activation: str | Path) -> None:
     from neckstrength.surfaces.surfaces import deep_extensor_mask, strength_surface
 
@@ -44,7 +44,7 @@ def _mf_strength_map(config: Mapping, factors) -> dict[float, float]:
     return {float(f): float(f) * total for f in factors}
 
 
-def stage_chapter4_reference_figures(config: Mapping, directions_csv, strength_csv, activation_csv,
+def chapter4_reference_figures(config: Mapping, directions_csv, strength_csv, activation_csv,
                                      out_slopes, fig43, fig44, fig45, fig46) -> None:
     from neckstrength.plotting import heatmap, radar_grid_series
     from neckstrength.surfaces.plots import muscle_radars
@@ -81,7 +81,7 @@ def stage_chapter4_reference_figures(config: Mapping, directions_csv, strength_c
                       f"Fig. 4.6: activations at 1x vs 0x deep extensors, {plane.replace('_', ' ')}, {ref}")
 
 
-def stage_chapter4_complexity(config: Mapping, surfaces: Mapping[str, tuple[str, str]], directions_csv,
+def chapter4_complexity_figures(config: Mapping, surfaces: Mapping[str, tuple[str, str]], directions_csv,
                               fig47, fig48) -> None:
     from neckstrength.surfaces.plots import stacked_share_bars
 
@@ -115,7 +115,7 @@ def stage_chapter4_complexity(config: Mapping, surfaces: Mapping[str, tuple[str,
                        "Fig. 4.8: muscle complexity; dark = deep-extensor contribution")
 
 
-def stage_chapter4_claims(config: Mapping, surfaces: Mapping[str, tuple[str, str]], directions_csv, slopes_csv,
+def chapter4_claims(config: Mapping, surfaces: Mapping[str, tuple[str, str]], directions_csv, slopes_csv,
                           out_csv) -> pd.DataFrame:
     from neckstrength.surfaces.claims import evaluate_claims
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import zlib
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -11,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 from neckstrength.abc.algorithm4 import estimate_strengths
-from neckstrength.config import abc_settings, full_model_from_config, model_from_config
+from neckstrength.config import abc_settings, derive_rng, full_model_from_config, model_from_config
 from neckstrength.estimation.datasets import build_dataset, thesis_result_table
 from neckstrength.estimation.scaling import bootstrap_prior
 from neckstrength.io import atomic_write_csv, atomic_write_text
@@ -24,7 +23,7 @@ DEEP_EXTENSOR_GROUPS = ("mf", "multif", "TC-E")
 OUTPUTS = ("estimate", "history", "scores", "dk_hist", "d_by_direction", "fit", "candidates")
 
 
-def stage_abc_estimate(config: Mapping, model_name: str, dataset: str, directions_csv: str | Path,
+def chapter5_estimate(config: Mapping, model_name: str, dataset: str, directions_csv: str | Path,
                        outputs: Mapping[str, str | Path], threads: int = 1) -> None:
     full = full_model_from_config(config)
     model = model_from_config(full, config, model_name)
@@ -36,7 +35,7 @@ def stage_abc_estimate(config: Mapping, model_name: str, dataset: str, direction
     f0, a = bootstrap_prior(model, data, c["bootstrap_direction"])
     out_dir = Path(outputs["estimate"]).parent
     ckpt = out_dir / ".checkpoint.npz"
-    rng = np.random.default_rng([config["seed"], zlib.crc32(f"{model_name}/{dataset}".encode())])
+    rng = derive_rng(config["seed"], f"{model_name}/{dataset}")
     print(f"model {model_name}, data set {dataset}: {model.m} muscles, {len(data.directions)} directions; "
           f"Eq. 5.3 scale a = {a:.4f} in '{c['bootstrap_direction']}'; settings {settings}")
     res = estimate_strengths(model, data, settings, f0, a, rng=rng, checkpoint=ckpt,
@@ -62,7 +61,7 @@ def stage_abc_estimate(config: Mapping, model_name: str, dataset: str, direction
     atomic_write_text(json.dumps(meta, indent=2, default=float), outputs["summary"])
 
 
-def stage_abc_figures(config: Mapping, model_name: str, dataset: str, directions_csv, inputs: Mapping[str, str],
+def chapter5_figures(config: Mapping, model_name: str, dataset: str, directions_csv, inputs: Mapping[str, str],
                       outputs: Mapping[str, str]) -> None:
     from neckstrength.abc.plots import abc_traces, d_by_direction_plot, dk_histograms, parallel_coordinates
     from neckstrength.plotting import radar_grid_series
@@ -87,7 +86,7 @@ def stage_abc_figures(config: Mapping, model_name: str, dataset: str, directions
                       outputs["radar"], f"Fit of the final estimate ({tag}) (N)")
 
 
-def stage_abc_table(config: Mapping, model_name: str, datasets: Sequence[str], estimates: Sequence[str],
+def chapter5_table(config: Mapping, model_name: str, datasets: Sequence[str], estimates: Sequence[str],
                     summaries: Sequence[str], out_csv: str | Path) -> pd.DataFrame:
     """Our f_c, sigma_c, D(f_c), iterations beside the thesis's Table 5.1 / 5.2 / 5.3."""
     thesis = thesis_result_table(config["data"]["thesis_dir"], model_name)
@@ -125,7 +124,7 @@ def stage_abc_table(config: Mapping, model_name: str, datasets: Sequence[str], e
     return df
 
 
-def stage_abc_smc(config: Mapping, model_name: str, dataset: str, directions_csv, estimate_csv, summary_json,
+def chapter5_smc(config: Mapping, model_name: str, dataset: str, directions_csv, estimate_csv, summary_json,
                   out_csv, out_generations) -> pd.DataFrame:
     """ABC-SMC with every muscle free vs Algorithm 4 at equal simulation budget."""
     from neckstrength.abc.smc import SMCSettings, abc_smc
@@ -144,7 +143,7 @@ def stage_abc_smc(config: Mapping, model_name: str, dataset: str, directions_csv
     alg4_budget = int(meta["iterations"]) * 3 ** len(pnames)
     budget = int(min(alg4_budget, sc["max_budget"]))
     f0, _ = bootstrap_prior(model, data, c["bootstrap_direction"])
-    rng = np.random.default_rng([config["seed"], zlib.crc32(f"smc/{model_name}/{dataset}".encode())])
+    rng = derive_rng(config["seed"], f"smc/{model_name}/{dataset}")
     print(f"Algorithm 4 used {alg4_budget} candidate evaluations ({meta['iterations']} iterations x 3^{len(pnames)}); "
           f"ABC-SMC budget {budget} (cap {sc['max_budget']})")
     res = abc_smc(model, data, f0, SMCSettings(n_particles=sc["n_particles"], budget=budget,
@@ -180,7 +179,7 @@ def stage_abc_smc(config: Mapping, model_name: str, dataset: str, directions_csv
     return df
 
 
-def stage_abc_coverage(config: Mapping, model_name: str, directions_csv, out_csv, out_summary) -> pd.DataFrame:
+def chapter5_coverage(config: Mapping, model_name: str, directions_csv, out_csv, out_summary) -> pd.DataFrame:
     """Coverage of the true strengths by f_c (1 +- sigma_c) over noisy simulated data sets (Sec. 7.1.3)."""
     from neckstrength.abc.coverage import coverage_check
     from neckstrength.estimation.datasets import simulated_dataset, thesis_f_actual
@@ -204,7 +203,7 @@ def stage_abc_coverage(config: Mapping, model_name: str, directions_csv, out_csv
     def f0_fn(data):
         return bootstrap_prior(model, data, c["bootstrap_direction"])[0]
 
-    rng = np.random.default_rng([config["seed"], zlib.crc32(f"coverage/{model_name}".encode())])
+    rng = derive_rng(config["seed"], f"coverage/{model_name}")
     df = coverage_check(model, make_data, f_a, abc_settings(config, model_name), f0_fn, cc["replicates"],
                         cc["noise"], rng)
     summ = df.groupby("parameter", sort=False).agg(coverage=("covered", "mean"), mean_f_c=("f_c", "mean"),

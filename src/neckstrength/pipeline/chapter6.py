@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import time
-import zlib
 from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -13,7 +12,13 @@ from typing import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from neckstrength.config import chapter6_settings, full_model_from_config, joint_settings, model_from_config
+from neckstrength.config import (
+    chapter6_settings,
+    full_model_from_config,
+    joint_settings,
+    model_from_config,
+    seed_sequence,
+)
 from neckstrength.estimation.datasets import (
     Dataset,
     build_dataset,
@@ -24,21 +29,26 @@ from neckstrength.estimation.datasets import (
 from neckstrength.io import atomic_write_csv, atomic_write_text
 from neckstrength.pipeline.common import load_directions
 from neckstrength.sequential.algorithms import (
-    SequentialSettings,
     SequentialState,
     SimulatedSet,
     StrengthGrid,
     fit_point_estimate,
-    joint_ess,
-    pdf_entropy,
-    posterior_from_loglik,
     run_sequence,
     sample_prior,
     scaled_baseline,
     stop_by_expected_gain,
 )
+from neckstrength.sequential.analysis import (
+    analyse,
+    bins_table,
+    expected_gain_table,
+    measure_from,
+    order_summary_table,
+    posterior_table,
+    subset_rows,
+)
 from neckstrength.sequential.joint import JointPosterior, run_joint
-from neckstrength.sequential.orders import order_entropies, stop_iteration, subset_table
+from neckstrength.sequential.orders import stop_iteration
 from neckstrength.sequential.plots import (
     _save,
     fig_expected_dS,
@@ -67,7 +77,7 @@ def chapter6_dataset(model, directions: pd.DataFrame, dataset: str, config: Mapp
 
 
 def _seeds(config: Mapping, key: str) -> tuple[np.random.SeedSequence, ...]:
-    ss = np.random.SeedSequence([int(config["seed"]), zlib.crc32(key.encode())])
+    ss = seed_sequence(config["seed"], key)
     return tuple(ss.spawn(2))
 
 
@@ -78,44 +88,7 @@ def _gamma(config: Mapping, model) -> np.ndarray | None:
     return np.array([float(g.get(n, 0.0)) for n in model.muscle_names])
 
 
-def _measure_fn(data: Dataset):
-    def measure(direction: str):
-        i = data.directions.index(direction)
-        b = None if data.alpha_lb is None else (data.alpha_lb[i], data.alpha_ub[i])
-        return float(data.forces[i]), b
-    return measure
-
-
-def _analyse(model, data: Dataset, sim: SimulatedSet, settings: SequentialSettings, seed_propose, gamma,
-             n_orders: int, order_seed, progress=None, alpha_cache: dict | None = None) -> dict:
-    """Algorithm 7 with the entropy-reducing selection, then the order analysis from the per-test factors."""
-    state = SequentialState(model, sim, data.force_scale, settings, alpha_cache=alpha_cache)
-    props, it = run_sequence(state, _measure_fn(data), np.random.default_rng(seed_propose), gamma, progress=progress)
-    K = sim.K
-    names = list(model.muscle_names)
-    order_sel = np.array([sim.directions.index(s.direction) for s in state.steps])
-    loglik = np.zeros((K, sim.m, sim.grid.n_bins))
-    for s in state.steps:
-        loglik[sim.directions.index(s.direction)] = s.loglik
-    log_prior = state.log_prior
-    subsets = None
-    if K <= 12:
-        subsets = subset_table(log_prior, loglik, sim.grid)
-        orders, H = order_entropies(subsets["H"], K)
-    else:  # sampled orders: entropies along each order's prefixes
-        rng = np.random.default_rng(order_seed)
-        orders = np.array([rng.permutation(K) for _ in range(n_orders)] + [order_sel])
-        H = np.zeros((len(orders), K + 1))
-        H[:, 0] = pdf_entropy(sim.prior_pdf, sim.grid).mean()
-        for o_i, o in enumerate(orders):
-            cum = np.cumsum(loglik[o], axis=0)
-            H[o_i, 1:] = pdf_entropy(posterior_from_loglik(log_prior[None], cum), sim.grid).mean(axis=1)
-    is_sel = np.all(orders == order_sel[None, :], axis=1)
-    return {"state": state, "proposals": props, "iterations": it, "order": order_sel, "loglik": loglik,
-            "subsets": subsets, "orders": orders, "H_orders": H, "is_selected": is_sel}
-
-
-def stage_sequential_run(config: Mapping, model_name: str, dataset: str, directions_csv: str | Path,
+def chapter6_run(config: Mapping, model_name: str, dataset: str, directions_csv: str | Path,
                          outputs: Mapping[str, str | Path]) -> None:
     t_start = time.time()
     c = config["chapter6"]
@@ -140,7 +113,7 @@ def stage_sequential_run(config: Mapping, model_name: str, dataset: str, directi
     for nb, sim in zip(bin_list, sims):
         t0 = time.time()
         st = replace(settings, n_bins=nb)
-        res[nb] = _analyse(model, data, sim, st, ss_prop, gamma, n_orders, ss_prop,
+        res[nb] = analyse(model, data, sim, st, ss_prop, gamma, n_orders, ss_prop,
                            progress=(lambda s: print(s, flush=True)) if nb == settings.n_bins else None,
                            alpha_cache=alpha_cache)
         print(f"n_bins {nb}: order {[data.directions[i] for i in res[nb]['order']]} in {time.time() - t0:.1f} s",
@@ -171,30 +144,11 @@ def stage_sequential_run(config: Mapping, model_name: str, dataset: str, directi
     atomic_write_csv(it, outputs["iterations"], hdr, float_format="%.6g")
 
     # posterior PDFs per iteration (density per N)
-    rows = []
-    cum = np.zeros_like(state.log_prior)
-    pdfs = [posterior_from_loglik(state.log_prior, cum)]
-    for s in state.steps:
-        cum = cum + s.loglik
-        pdfs.append(posterior_from_loglik(state.log_prior, cum))
-    c_ = sim.grid.centres
-    h = sim.grid.widths
-    ess = [joint_ess(sim, p) for p in pdfs]
-    for t, p in enumerate(pdfs):
-        for j, n in enumerate(names):
-            rows.append(pd.DataFrame({"iteration": t, "direction": "" if t == 0 else state.steps[t - 1].direction,
-                                      "muscle": n, "f": c_[j], "density": p[j] / h[j]}))
-    atomic_write_csv(pd.concat(rows, ignore_index=True), outputs["posteriors"], hdr, float_format="%.6g")
+    posteriors, ess = posterior_table(state, sim, names)
+    atomic_write_csv(posteriors, outputs["posteriors"], hdr, float_format="%.6g")
 
     # expected entropy reduction per iteration, direction and muscle (Fig. 6.8)
-    rows = []
-    for t, p in enumerate(main["proposals"], start=1):
-        tab = p.table()
-        for _, r in tab.iterrows():
-            for n in names:
-                rows.append({"iteration": t, "direction": r["direction"], "direction_index": dindex[r["direction"]],
-                             "muscle": n, "dS": r[n], "score": r["score"], "selected": bool(r["selected"])})
-    dS = pd.DataFrame(rows)
+    dS = expected_gain_table(main["proposals"], names, dindex)
     atomic_write_csv(dS, outputs["expected_dS"], hdr + ["dS = Eq. 6.6 expected entropy reduction (nats); score = "
                                                         "Eq. 6.7/6.8"], float_format="%.6g")
 
@@ -209,29 +163,11 @@ def stage_sequential_run(config: Mapping, model_name: str, dataset: str, directi
                                                     f"{len(orders) - 1} sampled orders + the selected one") +
                                                    "; H_t = mean over muscles of the posterior entropy after t tests"],
                      float_format="%.6g")
-    sel_H = H[is_sel][0]
-    others = H[~is_sel]
-    summ = []
-    for t in range(K + 1):
-        o = others[:, t]
-        summ.append({"iteration": t, "selected": sel_H[t], "min": o.min(), "q25": np.percentile(o, 25),
-                     "median": np.median(o), "q75": np.percentile(o, 75), "max": o.max(),
-                     "share_of_orders_lower": float((o < sel_H[t] - 1e-12).mean())})
-    order_summary = pd.DataFrame(summ)
+    order_summary = order_summary_table(H, is_sel)
     atomic_write_csv(order_summary, outputs["order_summary"], hdr, float_format="%.6g")
 
     # subsets (exact permutation analysis)
-    if exact:
-        sub = main["subsets"]
-        rows = []
-        for s_ in range(1 << K):
-            tested = [data.directions[i] for i in range(K) if s_ >> i & 1]
-            for j, n in enumerate(names):
-                rows.append({"subset": s_, "n_tested": len(tested), "tested": ";".join(tested), "muscle": n,
-                             "f_c": sub["E"][s_, j], "v_c": sub["V"][s_, j], "entropy": sub["H"][s_, j]})
-        subs = pd.DataFrame(rows)
-    else:
-        subs = pd.DataFrame(columns=["subset", "n_tested", "tested", "muscle", "f_c", "v_c", "entropy"])
+    subs = subset_rows(main["subsets"], data.directions, names)
     atomic_write_csv(subs, outputs["subsets"], hdr + ["posterior after every subset of tested directions (bit i = "
                                                       "direction i + 1)" if exact else "K > 12: not tabulated"],
                      float_format="%.6g")
@@ -248,15 +184,7 @@ def stage_sequential_run(config: Mapping, model_name: str, dataset: str, directi
                                                  f"{D_fc_free:.4f}"], float_format="%.6g")
 
     # bin sensitivity
-    rows = []
-    for nb, r in res.items():
-        e = r["state"].estimate()
-        for j, n in enumerate(names):
-            rows.append({"n_bins": nb, "muscle": n, "f_c": e["f_c"][j], "v_c": e["v_c"][j], "entropy": e["entropy"][j],
-                         "order": "-".join(str(i + 1) for i in r["order"]),
-                         "rel_diff_f_c_vs_main": e["f_c"][j] / est["f_c"][j] - 1.0,
-                         "rel_diff_sd_c_vs_main": np.sqrt(e["v_c"][j] / est["v_c"][j]) - 1.0})
-    bins = pd.DataFrame(rows)
+    bins = bins_table(res, names, est)
     atomic_write_csv(bins, outputs["bins"], hdr + ["same candidates, simulations and random draws on other strength "
                                                    "grids; order = selected direction indices"], float_format="%.6g")
 
@@ -291,7 +219,7 @@ def stage_sequential_run(config: Mapping, model_name: str, dataset: str, directi
           f"{t_gain} (expected gain)", flush=True)
 
 
-def stage_sequential_figures(config: Mapping, model_name: str, dataset: str, directions_csv,
+def chapter6_figures(config: Mapping, model_name: str, dataset: str, directions_csv,
                              inputs: Mapping[str, str], outputs: Mapping[str, str]) -> None:
     from neckstrength.plotting import radar_grid_series
 
@@ -335,7 +263,7 @@ def stage_sequential_figures(config: Mapping, model_name: str, dataset: str, dir
         radar_grid_series(d, series, outputs["radar"], title, rlabel="N")
 
 
-def stage_sequential_table(config: Mapping, model_name: str, datasets: Sequence[str], estimates: Sequence[str],
+def chapter6_table(config: Mapping, model_name: str, datasets: Sequence[str], estimates: Sequence[str],
                            summaries: Sequence[str], out_table: str | Path, out_stop: str | Path) -> pd.DataFrame:
     """Table 6.1 regenerated (f_c, v_c, D(f_c), f_a) beside the thesis; stop points and late jumps per data set."""
     c = config["chapter6"]
@@ -397,7 +325,7 @@ def stage_sequential_table(config: Mapping, model_name: str, datasets: Sequence[
     return df
 
 
-def stage_order_comparison(config: Mapping, directions_csv, out_csv: str | Path, out_fig: str | Path) -> pd.DataFrame:
+def chapter6_order_comparison(config: Mapping, directions_csv, out_csv: str | Path, out_fig: str | Path) -> pd.DataFrame:
     """Beyond the thesis: entropy-reducing order vs all other orders, averaged over simulated participants.
 
     Participants: ``f_a = scale f'_base (1 + noise_sd_rel z)`` (Sec. 6.5.1's recipe). Per participant and
@@ -412,7 +340,7 @@ def stage_order_comparison(config: Mapping, directions_csv, out_csv: str | Path,
     model = model_from_config(full_model_from_config(config), config, oc.get("model", "p2m7"))
     d = load_directions(directions_csv)
     base_settings = chapter6_settings(config, model.name, n_candidates=int(oc["n_candidates"]))
-    ss = np.random.SeedSequence([int(config["seed"]), zlib.crc32(b"chapter6/order_comparison")])
+    ss = seed_sequence(config["seed"], "chapter6/order_comparison")
     groups = c.get("emg_groups", {}).get(model.name, []) if c.get("simulated_emg", True) else []
     rows = []
     for p_i, child in enumerate(ss.spawn(int(oc["n_participants"]))):
@@ -428,7 +356,7 @@ def stage_order_comparison(config: Mapping, directions_csv, out_csv: str | Path,
         cache = {}
         for crit, st in (("entropy-reducing (prior predictive)", base_settings),
                          ("entropy-reducing (posterior predictive)", replace(base_settings, predictive="posterior"))):
-            res[crit] = _analyse(model, data, sim, st, s_prop, None, 0, s_prop, alpha_cache=cache)
+            res[crit] = analyse(model, data, sim, st, s_prop, None, 0, s_prop, alpha_cache=cache)
         r0 = next(iter(res.values()))
         sub = r0["subsets"]
         K = sim.K
@@ -471,14 +399,14 @@ def stage_order_comparison(config: Mapping, directions_csv, out_csv: str | Path,
 
 
 def _seed(config: Mapping, key: str) -> np.random.SeedSequence:
-    return np.random.SeedSequence([int(config["seed"]), zlib.crc32(key.encode())])
+    return seed_sequence(config["seed"], key)
 
 
 def _print(s: str) -> None:
     print(s, flush=True)
 
 
-def stage_joint_run(config: Mapping, model_name: str, dataset: str, directions_csv, out_iterations, out_estimate,
+def chapter6_joint(config: Mapping, model_name: str, dataset: str, directions_csv, out_iterations, out_estimate,
                     out_summary) -> pd.DataFrame:
     """The joint sequential estimator on one data set with every criterion of ``chapter6.joint.criteria``.
 
@@ -498,7 +426,7 @@ def stage_joint_run(config: Mapping, model_name: str, dataset: str, directions_c
     f0, a, _ = scaled_baseline(model, data)
     key = f"chapter6/joint/{model_name}/{dataset}"
     ss_cand, ss_prop = _seed(config, key).spawn(2)
-    measure = _measure_fn(data)
+    measure = measure_from(data)
     if not use_emg:
         measure = (lambda m: (lambda dn: (m(dn)[0], None)))(measure)
     _print(f"joint sequential estimator, {model_name} / {dataset}: {model.m} muscles, {len(data.directions)} "
@@ -539,7 +467,7 @@ def stage_joint_run(config: Mapping, model_name: str, dataset: str, directions_c
     return it
 
 
-def stage_criteria_comparison(config: Mapping, model_name: str, directions_csv, out_table, out_summary,
+def chapter6_criteria(config: Mapping, model_name: str, directions_csv, out_table, out_summary,
                               out_fig) -> pd.DataFrame:
     """Criteria compared over simulated participants, all judged on the joint posterior after t tests.
 
@@ -582,7 +510,7 @@ def stage_criteria_comparison(config: Mapping, model_name: str, directions_csv, 
             _print(f"participant {p_i + 1}: skipped ({e})")
             continue
         f0, _, _ = scaled_baseline(model, data)
-        measure = _measure_fn(data)
+        measure = measure_from(data)
         runs = [(crit, crit, None) for crit in criteria]
         prop_rngs = {crit: np.random.default_rng(s_prop) for crit in criteria}
         for r in range(n_random):

@@ -1,15 +1,14 @@
-"""Pipeline helpers shared by the stage modules: provenance header lines and the direction table."""
+"""Pipeline helpers shared by the stage modules: provenance header lines, reading the direction table."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Mapping
 
-import numpy as np
 import pandas as pd
 
 from neckstrength import __version__
-from neckstrength.model.reduction import ReducedModel
+from neckstrength.config import Settings, settings_view
 
 
 def provenance_lines(config: Mapping, what: str) -> list[str]:
@@ -23,8 +22,8 @@ def load_directions(path: str | Path) -> pd.DataFrame:
     return pd.read_csv(path, comment="#")
 
 
-def model_directions(model: ReducedModel, directions: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray]:
-    """Directions used by a model (all 25 spatial, the 7 sagittal for planar) and task-space unit wrenches."""
-    from neckstrength.estimation.datasets import model_directions_table
-
-    return model_directions_table(model, directions)
+def rule_settings(smk) -> Settings:
+    """The config settings a rule declared as ``params.settings`` (``settings(...)`` in ``workflow/rules/common.smk``),
+    as a read-only :class:`~neckstrength.config.Settings` view that refuses undeclared keys."""
+    selected = getattr(smk.params, "settings", None) or {"keys": [], "values": {}}   # a rule that reads none
+    return settings_view(selected, str(smk.rule))

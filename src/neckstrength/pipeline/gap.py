@@ -4,135 +4,42 @@ from __future__ import annotations
 
 import json
 import time
-import zlib
 from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 
-from neckstrength.config import benchmark_settings, diagnosis_settings, full_model_from_config, model_from_config
-from neckstrength.estimation.datasets import build_dataset, model_directions_table, participant_dataset
+from neckstrength.config import (
+    benchmark_settings,
+    derive_rng,
+    diagnosis_settings,
+    gap_blind_dataset,
+    gap_context,
+    gap_settings_text,
+    gap_withheld_activations,
+)
 from neckstrength.gap.benchmark import run_benchmark
-from neckstrength.gap.diagnose import BlindData, DiagnosisSettings, diagnose
-from neckstrength.gap.effects import GapContext
-from neckstrength.gap.report import activation_check, markdown_table, write_figures, write_report
-from neckstrength.io import atomic_write_csv, atomic_write_text, read_activations
+from neckstrength.gap.diagnose import DiagnosisSettings
+from neckstrength.gap.report import markdown_table
+from neckstrength.gap.run import run_diagnosis
+from neckstrength.io import atomic_write_csv, atomic_write_text
 from neckstrength.pipeline.common import load_directions
 
-DATASET_FILES = ("residuals", "planes", "components", "muscles", "effects", "strengths", "activation_check")
 
-
-FIGURES = ("radar", "where", "effects", "activation")
-
-
-def gap_context(config: Mapping, model_name: str, directions: pd.DataFrame) -> GapContext:
-    g = config["gap"]
-    full = full_model_from_config(config)
-    model = model_from_config(full, config, model_name)
-    d, _ = model_directions_table(model, directions)
-    tie = g.get("tie_sides")
-    if tie is None:
-        tie = bool(config["chapter5"]["settings"].get(model_name, {}).get("tie_sides", False))
-    emg = tuple(config["chapter5"].get("emg_groups", {}).get(model_name, []))
-    return GapContext(full, model, d, np.asarray(config["geometry"]["head"]["centre"], float), emg,
-                      tuple(g["shoulder_muscles"]), bool(tie), dict(g.get("effect_settings") or {}))
-
-
-def _measurements(config: Mapping) -> str:
-    return config["gap"].get("measurements") or config["data"]["measurements"]
-
-
-def blind_dataset(config: Mapping, ctx: GapContext, directions: pd.DataFrame, dataset: str) -> BlindData:
-    """Forces only: a participant column of the measurement table, or a simulated data set ('norm', 'weak')."""
-    c5 = dict(config["chapter5"], participant_emg="none")
-    if dataset in ("norm", "weak"):
-        data = build_dataset(ctx.model, directions, dataset, c5, config["data"]["thesis_dir"],
-                             _measurements(config), config["data"]["activations"])
-    else:
-        data = participant_dataset(ctx.model, directions, dataset, _measurements(config))
-    if list(data.directions) != list(ctx.directions["name"]):
-        raise ValueError("data set directions do not match the model's directions")
-    return BlindData(dataset, data.forces)
-
-
-def withheld_activations(config: Mapping, ctx: GapContext, dataset: str) -> np.ndarray | None:
-    """Table A.3 column of ``dataset`` in direction order, or None when it has none (e.g. simulated)."""
-    path = config["data"].get("activations")
-    if not path or not Path(path).exists():
-        return None
-    act = read_activations(path)
-    if dataset not in act.columns:
-        return None
-    return act[dataset].reindex(ctx.directions["name"]).to_numpy(float)
-
-
-def _settings_text(config: Mapping, s: DiagnosisSettings) -> str:
-    g = config["gap"]
-    return "\n".join([f"- effects: {', '.join(s.effects)}",
-                      f"- effect settings: `{json.dumps(g.get('effect_settings') or {})}`",
-                      f"- grid points per effect: {s.grid_points}; folds: {s.folds}; starts per fit: {s.starts} "
-                      f"(spread {s.start_spread} in log strength); pairs of the best {s.pairs_top} effects on the "
-                      f"best {s.pair_grid_top} grid points of each",
-                      f"- fit: {json.dumps(g['fit'])}; penalty {s.penalty} per extra parameter; bootstrap {s.bootstrap}",
-                      f"- effect-parameter refinement iterations (all-direction fit): {s.refine_iter}",
-                      f"- reach envelope: {s.reach_samples} samples, {s.reach_iter} gradient iterations",
-                      f"- seed {config['seed']}"])
-
-
-def stage_gap_diagnose(config: Mapping, model_name: str, dataset: str, directions_csv: str | Path | pd.DataFrame,
-                       outputs: Mapping[str, str | Path]) -> dict:
+def gap_diagnose(config: Mapping, model_name: str, dataset: str, directions_csv: str | Path | pd.DataFrame,
+                 outputs: Mapping[str, str | Path]) -> dict:
     """Diagnose one data set: tables, figures, report.md and summary.json (keys of ``outputs``)."""
-    t0 = time.time()
     directions = directions_csv if isinstance(directions_csv, pd.DataFrame) else load_directions(directions_csv)
     ctx = gap_context(config, model_name, directions)
-    data = blind_dataset(config, ctx, directions, dataset)
+    data = gap_blind_dataset(config, ctx, directions, dataset)
     s = diagnosis_settings(config)
-    rng = np.random.default_rng([config["seed"], zlib.crc32(f"gap/{model_name}/{dataset}".encode())])
-    print(f"gap diagnosis: model {model_name}, data set {dataset}, {ctx.K} directions, forces only", flush=True)
-    diag = diagnose(ctx, [data], s, rng, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}", flush=True))[0]
-    a3 = withheld_activations(config, ctx, dataset)
-    act = activation_check(diag, a3)
-    hdr = [f"gap diagnosis (issue 8): model {model_name}, data set {dataset}; forces only (Table A.3 withheld)"]
-    tables = {"residuals": diag.residuals, "planes": diag.planes, "components": diag.components,
-              "muscles": diag.muscles, "effects": diag.effects, "strengths": diag.strengths,
-              "activation_check": act if len(act) else pd.DataFrame(
-                  {"candidate": [], "pearson_r": [], "spearman_rho": [], "model_mean": [], "a3_mean": [],
-                   "mean_abs_diff": []})}
-    for k, df in tables.items():
-        atomic_write_csv(df, outputs[k], hdr, float_format="%.6g")
-    figs = {k: outputs[f"fig_{k}"] for k in FIGURES if f"fig_{k}" in outputs}
-    if a3 is None:
-        Path(figs["activation"]).parent.mkdir(parents=True, exist_ok=True)
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(6, 2))
-        ax.text(0.5, 0.5, f"no withheld activation data for {dataset}", ha="center", va="center")
-        ax.axis("off")
-        fig.savefig(figs["activation"], dpi=80)
-        plt.close(fig)
-    write_figures(diag, directions, figs, a3)
-    rel = {k: Path(v).name for k, v in figs.items()}
-    if a3 is None:
-        rel.pop("activation")
-    summary = dict(diag.summary)
-    if len(act):
-        a = act.set_index("candidate")
-        for c, tag in (("none", "base"), (summary["chosen"], "chosen")):
-            if c in a.index:
-                summary[f"a3_pearson_{tag}"] = float(a.loc[c, "pearson_r"])
-                summary[f"a3_model_mean_{tag}"] = float(a.loc[c, "model_mean"])
-                summary[f"a3_mean_abs_diff_{tag}"] = float(a.loc[c, "mean_abs_diff"])
-        summary["a3_mean"] = float(a["a3_mean"].iloc[0])
-    summary["seconds"] = time.time() - t0
-    write_report(diag, outputs["report"], rel, act, _settings_text(config, s))
-    atomic_write_text(json.dumps(summary, indent=2, default=float), outputs["summary"])
-    print(f"done in {time.time() - t0:.0f} s: chosen {summary['chosen']}, held-out gap "
-          f"{summary['gap_before']:.3f} -> {summary['gap_after']:.3f}")
-    return summary
+    rng = derive_rng(config["seed"], f"gap/{model_name}/{dataset}")
+    return run_diagnosis(ctx, data, s, rng, directions, gap_withheld_activations(config, ctx, dataset), outputs,
+                         gap_settings_text(config, s), model_name)
 
 
-def stage_gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summaries: Sequence[str],
+def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summaries: Sequence[str],
                      effects: Sequence[str], out_csv: str | Path, out_ranking: str | Path) -> pd.DataFrame:
     """One row per data set (where / which / how far / Table A.3 check) plus a pooled row, and the pooled
     effect ranking (mean score over data sets, number of data sets where each candidate ranks first)."""
@@ -180,7 +87,7 @@ def stage_gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], 
     return df
 
 
-def stage_gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
+def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
                         outputs: Mapping[str, str | Path]) -> dict[str, pd.DataFrame]:
     """Withheld-effect benchmark; prints the confusion matrix (to the rule's log)."""
     t0 = time.time()
@@ -192,7 +99,7 @@ def stage_gap_benchmark(config: Mapping, model_name: str, directions_csv: str | 
     ds = DiagnosisSettings(**{**ds.__dict__, "folds": b.get("folds", ds.folds),
                               "bootstrap": b.get("bootstrap", ds.bootstrap), "starts": b.get("starts", ds.starts),
                               "reach_samples": 0, "reach_iter": 0})
-    rng = np.random.default_rng([config["seed"], zlib.crc32(f"gap-benchmark/{model_name}".encode())])
+    rng = derive_rng(config["seed"], f"gap-benchmark/{model_name}")
     cases, diags, tabs = run_benchmark(ctx, bs, ds, rng, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}",
                                                                                   flush=True))
     hdr = [f"withheld-effect benchmark ({model_name}): {len(cases)} cases, noise {bs.noise_rel} (log-normal SD), "

@@ -10,10 +10,12 @@ import numpy as np
 import pandas as pd
 
 from neckstrength.config import build_directions, full_model_from_config, model_from_config
+from neckstrength.estimation.datasets import model_directions_table
 from neckstrength.io import atomic_write_csv
 from neckstrength.model.full import AXES, B1_JOINTS, COORDINATES, load_full_model, load_table_b1
+from neckstrength.model.geometry import DIRECTIONS_HEADER
 from neckstrength.model.reduction import ReducedModel
-from neckstrength.pipeline.common import load_directions, model_directions, provenance_lines
+from neckstrength.pipeline.common import load_directions, provenance_lines
 from neckstrength.wrench import solve
 from neckstrength.wrench.problem import STATUS_CODES
 
@@ -21,7 +23,7 @@ THESIS_PARAM_TABLES = {"s3m24": "table_B3_params_s3m24.csv", "p3m12": "table_B5_
                        "p2m7": "table_B7_params_p2m7.csv"}
 
 
-def stage_full_model(config: Mapping, out_csv: str | Path, out_b1_compare: str | Path) -> None:
+def model_full(config: Mapping, out_csv: str | Path, out_b1_compare: str | Path) -> None:
     """Full-model table (strengths with source, R in thesis sign convention) and the B.1 comparison."""
     full = full_model_from_config(config)
     df = full.muscles.copy()
@@ -54,16 +56,12 @@ def stage_full_model(config: Mapping, out_csv: str | Path, out_b1_compare: str |
                      float_format="%.5g")
 
 
-def stage_directions(config: Mapping, out_csv: str | Path) -> None:
+def model_directions(config: Mapping, out_csv: str | Path) -> None:
     d = build_directions(config)
-    atomic_write_csv(d, out_csv, ["test directions: points and outward normals (skull frame, m), unit wrenches "
-                                  "u = (p x n, n)/|.| ordered (Mx,My,Mz,Fx,Fy,Fz)",
-                                  "force_scale = |(p x n, n)|: force (N) = LP wrench magnitude / force_scale",
-                                  "geometry is a reconstruction unless method = measured (docs/geometry.md)"],
-                     float_format="%.6f")
+    atomic_write_csv(d, out_csv, DIRECTIONS_HEADER, float_format="%.6f")
 
 
-def stage_reduce(config: Mapping, model_name: str, out_params: str | Path, out_jt: str | Path,
+def model_reduce(config: Mapping, model_name: str, out_params: str | Path, out_jt: str | Path,
                  out_groups: str | Path | None = None) -> ReducedModel:
     full = full_model_from_config(config)
     model = model_from_config(full, config, model_name)
@@ -84,7 +82,7 @@ def stage_reduce(config: Mapping, model_name: str, out_params: str | Path, out_j
     return model
 
 
-def stage_compare_thesis_params(config: Mapping, model_name: str, out_csv: str | Path) -> pd.DataFrame:
+def model_vs_thesis(config: Mapping, model_name: str, out_csv: str | Path) -> pd.DataFrame:
     """Our reduced parameters beside Table B.3 / B.5 / B.7, with differences."""
     full = full_model_from_config(config)
     model = model_from_config(full, config, model_name)
@@ -115,12 +113,12 @@ def stage_compare_thesis_params(config: Mapping, model_name: str, out_csv: str |
     return df
 
 
-def stage_baseline_strength(config: Mapping, model_name: str, directions_csv: str | Path,
+def model_baseline_strength(config: Mapping, model_name: str, directions_csv: str | Path,
                             out_csv: str | Path) -> pd.DataFrame:
     """Maximum wrench of the baseline model in each test direction, with activations."""
     full = full_model_from_config(config)
     model = model_from_config(full, config, model_name)
-    d, U = model_directions(model, load_directions(directions_csv))
+    d, U = model_directions_table(model, load_directions(directions_csv))
     w, alpha, status = solve(model, model.strengths[None, :], U, method="highs")
     out = pd.DataFrame({"direction": d["name"], "wrench": w[0], "force_N": w[0] / d["force_scale"].to_numpy(),
                         "status": [STATUS_CODES[s] for s in status[0]]})

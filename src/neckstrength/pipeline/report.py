@@ -11,7 +11,7 @@ from neckstrength.report.runinfo import environment_table, runtime_by_rule, runt
 from neckstrength.report.scorecard import build_scorecard, header_lines, summarize, tolerance_table, tolerances
 
 
-def stage_runtime(metadata_dir: str | Path, out_jobs, out_by_rule, exclude_rules: Iterable[str] = ()) -> pd.DataFrame:
+def report_runtime(metadata_dir: str | Path, out_jobs, out_by_rule, exclude_rules: Iterable[str] = ()) -> pd.DataFrame:
     """The run-time rule: per job and per rule tables."""
     from neckstrength.io import atomic_write_csv
 
@@ -29,7 +29,7 @@ def stage_runtime(metadata_dir: str | Path, out_jobs, out_by_rule, exclude_rules
     return jobs
 
 
-def stage_environment(config: Mapping, out_csv) -> pd.DataFrame:
+def report_environment(config: Mapping, out_csv) -> pd.DataFrame:
     """The environment rule: software versions, platform and seeds."""
     from neckstrength.io import atomic_write_csv
 
@@ -40,7 +40,7 @@ def stage_environment(config: Mapping, out_csv) -> pd.DataFrame:
     return env
 
 
-def stage_scorecard(config: Mapping, inputs: Sequence[str], out_table, out_summary, out_tolerances,
+def report_scorecard(config: Mapping, inputs: Sequence[str], out_table, out_summary, out_tolerances,
                     overrides: Mapping[str, float] | None = None) -> pd.DataFrame:
     """The scorecard rule: scorecard, summary per chapter and the tolerance table."""
     from neckstrength.io import atomic_write_csv

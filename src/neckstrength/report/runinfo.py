@@ -248,13 +248,13 @@ def seed_rows(config: Mapping) -> list[dict]:
     c3 = config.get("chapter3", {})
     if not c3.get("data"):
         rows.append({"kind": "seed", "name": "chapter3 SYNTHETIC cohort", "value": f"default_rng({seed})",
-                     "note": "neckstrength.pipeline.chapter3.stage_synthetic_cohort"})
+                     "note": "neckstrength.pipeline.chapter3.chapter3_synthetic_cohort"})
     c5 = config.get("chapter5", {})
     for m in c5.get("models", []):
         for d in c5.get("datasets", []):
             rows.append({"kind": "seed", "name": f"chapter5 {m}/{d}",
                          "value": f"default_rng([{seed}, {zlib.crc32(f'{m}/{d}'.encode())}])",
-                         "note": "crc32 of 'model/dataset' (neckstrength.pipeline.chapter5.stage_abc_estimate)"})
+                         "note": "crc32 of 'model/dataset' (neckstrength.pipeline.chapter5.chapter5_estimate)"})
     return rows
 
 

@@ -3,6 +3,7 @@
 
 - :mod:`.algorithms`  candidates from the prior, marginal posteriors on a grid, Algorithms 7-9 (the thesis's estimator)
 - :mod:`.orders`      exact order analysis over every subset of tests, stop rules
+- :mod:`.analysis`    one run analysed: Algorithm 7 with selection, order analysis, the tables behind Figs. 6.4-6.8
 - :mod:`.joint`       the joint posterior with importance resampling and resample-move (beyond the thesis)
 - :mod:`.plots`       Figs. 6.4-6.10 (imported on its own: it loads matplotlib)
 """

@@ -1,0 +1,73 @@
+"""One diagnosis run, written to its output files: tables, figures, ``report.md`` and ``summary.json``.
+
+Called by the pipeline rule ``gap_diagnose`` and by ``neckstrength diagnose`` with the same arguments, so the
+same data set gets the same answer by either path.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+import pandas as pd
+
+from neckstrength.gap.diagnose import BlindData, DiagnosisSettings, diagnose
+from neckstrength.gap.effects import GapContext
+from neckstrength.gap.report import activation_check, write_figures, write_report
+from neckstrength.io import atomic_write_csv, atomic_write_text
+
+#: Per-data-set tables and figures (keys of ``outputs``; plus 'summary' and 'report').
+DATASET_FILES = ("residuals", "planes", "components", "muscles", "effects", "strengths", "activation_check")
+FIGURES = ("radar", "where", "effects", "activation")
+
+
+def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings, rng: np.random.Generator,
+                  directions: pd.DataFrame, a3: np.ndarray | None, outputs: Mapping[str, str | Path],
+                  settings_text: str, model_name: str) -> dict:
+    """Diagnose one data set and write every output (keys of ``outputs``); returns the summary."""
+    t0 = time.time()
+    dataset = data.name
+    s = settings
+    print(f"gap diagnosis: model {model_name}, data set {dataset}, {ctx.K} directions, forces only", flush=True)
+    diag = diagnose(ctx, [data], s, rng, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}", flush=True))[0]
+    act = activation_check(diag, a3)
+    hdr = [f"gap diagnosis (issue 8): model {model_name}, data set {dataset}; forces only (Table A.3 withheld)"]
+    tables = {"residuals": diag.residuals, "planes": diag.planes, "components": diag.components,
+              "muscles": diag.muscles, "effects": diag.effects, "strengths": diag.strengths,
+              "activation_check": act if len(act) else pd.DataFrame(
+                  {"candidate": [], "pearson_r": [], "spearman_rho": [], "model_mean": [], "a3_mean": [],
+                   "mean_abs_diff": []})}
+    for k, df in tables.items():
+        atomic_write_csv(df, outputs[k], hdr, float_format="%.6g")
+    figs = {k: outputs[f"fig_{k}"] for k in FIGURES if f"fig_{k}" in outputs}
+    if a3 is None:
+        Path(figs["activation"]).parent.mkdir(parents=True, exist_ok=True)
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(6, 2))
+        ax.text(0.5, 0.5, f"no withheld activation data for {dataset}", ha="center", va="center")
+        ax.axis("off")
+        fig.savefig(figs["activation"], dpi=80)
+        plt.close(fig)
+    write_figures(diag, directions, figs, a3)
+    rel = {k: Path(v).name for k, v in figs.items()}
+    if a3 is None:
+        rel.pop("activation")
+    summary = dict(diag.summary)
+    if len(act):
+        a = act.set_index("candidate")
+        for c, tag in (("none", "base"), (summary["chosen"], "chosen")):
+            if c in a.index:
+                summary[f"a3_pearson_{tag}"] = float(a.loc[c, "pearson_r"])
+                summary[f"a3_model_mean_{tag}"] = float(a.loc[c, "model_mean"])
+                summary[f"a3_mean_abs_diff_{tag}"] = float(a.loc[c, "mean_abs_diff"])
+        summary["a3_mean"] = float(a["a3_mean"].iloc[0])
+    summary["seconds"] = time.time() - t0
+    write_report(diag, outputs["report"], rel, act, settings_text)
+    atomic_write_text(json.dumps(summary, indent=2, default=float), outputs["summary"])
+    print(f"done in {time.time() - t0:.0f} s: chosen {summary['chosen']}, held-out gap "
+          f"{summary['gap_before']:.3f} -> {summary['gap_after']:.3f}")
+    return summary
