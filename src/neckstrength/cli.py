@@ -165,7 +165,7 @@ def _cmd_estimate(args) -> int:
     with contextlib.redirect_stdout(sys.stderr):
         s = run_estimate(cfg, args.model, args.participant, measurements, out, args.method, activations, args.seed,
                          args.emg, args.max_iter, args.threads, args.criterion,
-                         log=lambda m: print(m, file=sys.stderr, flush=True))
+                         log=lambda m: print(m, file=sys.stderr, flush=True), figures=not args.no_figures)
     head = f"{args.method} estimate, model {args.model}, participant {args.participant}, seed {s['seed']}"
     if "iterations" in s:
         head += f": {s['iterations']} iterations, converged {s['converged']}, D(f_c) = {s['D_fc']:.3f}"
@@ -326,6 +326,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--threads", type=int, default=1)
     d.add_argument("--criterion", default="joint_eig", choices=["joint_eig", "marginal_entropy"],
                    help="joint: test-selection criterion")
+    d.add_argument("--no-figures", action="store_true", help="skip the figures (Algorithm 4 / ABC-SMC)")
     trial_options(d)
     d.set_defaults(func=_cmd_estimate)
 

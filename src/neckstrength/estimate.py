@@ -80,7 +80,7 @@ def _prepare_inputs(cfg: Mapping, model_name: str, participant: str, measurement
 def run_estimate(config: Mapping, model_name: str, participant: str, measurements: str | Path, out_dir: str | Path,
                  method: str = "alg4", activations: str | Path | None = None, seed: int | None = None,
                  emg: str = "none", max_iter: int | None = None, threads: int = 1,
-                 criterion: str = "joint_eig", log: Callable[[str], None] = print) -> dict:
+                 criterion: str = "joint_eig", log: Callable[[str], None] = print, figures: bool = True) -> dict:
     """Estimate ``participant``'s strengths with ``method`` (alg4, smc, joint); outputs under ``out_dir``.
 
     Returns a summary dict (also written as ``run.json``). Progress goes to ``log``.
@@ -117,8 +117,9 @@ def run_estimate(config: Mapping, model_name: str, participant: str, measurement
         figs = {"traces": out / "fig_estimate_traces.png", "dk_hist": out / "fig_dk_hist.png",
                 "d_dir": out / "fig_d_by_direction.png", "parallel": out / "fig_parallel.png",
                 "radar": out / "fig_fit_radar.png"}
-        stage_abc_figures(cfg, model_name, participant, prep["directions"], {k: str(v) for k, v in outputs.items()},
-                          figs)
+        if figures:
+            stage_abc_figures(cfg, model_name, participant, prep["directions"],
+                              {k: str(v) for k, v in outputs.items()}, figs)
         meta = json.loads((out / "summary.json").read_text())
         est = pd.read_csv(outputs["estimate"], comment="#")
         summary.update({"iterations": meta["iterations"], "converged": meta["converged"], "D_fc": meta["D_fc"],
