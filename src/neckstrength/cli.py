@@ -10,6 +10,7 @@ Verbs:
   import-trials  a lab's trial table -> max-force / activation tables + quality report (docs/trials.md)
   estimate       strengths of one participant from a table or trials: Algorithm 4, ABC-SMC or joint estimator
   example-lab    write the SYNTHETIC example lab data set (trials generated from the model)
+  c3d-to-trials  C3D files (one per trial, listed in a manifest) -> trial table + EMG signals (needs 'c3d' extra)
 """
 
 from __future__ import annotations
@@ -177,6 +178,35 @@ def _cmd_estimate(args) -> int:
     return 0
 
 
+def _cmd_c3d(args) -> int:
+    from neckstrength.config import build_directions
+    from neckstrength.io import atomic_write_csv
+    from neckstrength.trials.c3d import c3d_to_tables
+
+    cfg = load_config(args.config)
+    channels = {}
+    for item in args.channel or []:
+        if "=" not in item:
+            print(f"error: --channel {item!r}: expected NAME=LABEL (e.g. Fx=Force.Fx1)", file=sys.stderr)
+            return 2
+        k, v = item.split("=", 1)
+        channels[k.strip()] = v.strip()
+    s = _trial_settings(args, cfg)
+    from neckstrength.trials import default_frames
+
+    trials, signals = c3d_to_tables(args.manifest, build_directions(cfg), channels,
+                                    default_frames(s.pad_to_c0_m, s.frames))
+    out = Path(args.out)
+    atomic_write_csv(trials, out / "trials.csv", [f"from C3D files listed in {args.manifest}",
+                                                   "units: Mx=N*m; My=N*m; Mz=N*m; Fx=N; Fy=N; Fz=N; peak_time_s=s"],
+                     float_format="%.6g")
+    atomic_write_csv(signals, out / "signals.csv", [f"EMG analog channels from C3D files listed in {args.manifest}",
+                                                     "units: time_s=s"], float_format="%.6g")
+    print(f"wrote {out / 'trials.csv'} ({len(trials)} trials) and {out / 'signals.csv'}; next: neckstrength "
+          f"import-trials {out / 'trials.csv'} --signals {out / 'signals.csv'} --out <folder>")
+    return 0
+
+
 def _cmd_derive(args) -> int:
     from neckstrength.model.opensim import derive as derive_opensim
 
@@ -329,6 +359,14 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--no-figures", action="store_true", help="skip the figures (Algorithm 4 / ABC-SMC)")
     trial_options(d)
     d.set_defaults(func=_cmd_estimate)
+
+    d = sub.add_parser("c3d-to-trials", help="C3D files of a manifest -> trial table + EMG signals (c3d extra)")
+    d.add_argument("manifest", help="CSV: path,participant,direction,block,trial,frame (one C3D file per trial)")
+    d.add_argument("--out", required=True)
+    d.add_argument("--config", default="config/config.yaml")
+    d.add_argument("--channel", action="append", metavar="NAME=LABEL",
+                   help="analog label of Fx..Mz or an EMG channel (SCM_R, ...) when it differs (repeatable)")
+    d.set_defaults(func=_cmd_c3d)
 
     d = sub.add_parser("example-lab", help="write the SYNTHETIC example lab data set")
     d.add_argument("--out", default="data/example_lab")
