@@ -174,7 +174,8 @@ def _cmd_estimate(args) -> int:
     if s["directions_dropped"]:
         print(f"directions without a value (not used): {', '.join(s['directions_dropped'])}")
     print(s["table"].to_string(index=False, float_format=lambda x: f"{x:.4g}"))
-    print(f"results and figures in {out}/ (run.json records the inputs and the seed)")
+    figs = args.method != "joint" and not args.no_figures
+    print(f"results{' and figures' if figs else ''} in {out}/ (run.json records the inputs and the seed)")
     return 0
 
 

@@ -5,7 +5,8 @@ perturbed per muscle group; the max wrench in each test and cardinal direction i
 LP), and every trial is a share of it with the imperfections a lab sees:
 
 - effort: the first trial 88-100% of the maximum, later ones 90-100%; a third trial when the protocol asks;
-- direction errors: small (a few degrees) in most trials, 25-45 deg in about one trial in eight;
+- direction errors: small (a few degrees) in most trials, 25-45 deg in about one trial in eight, and in about
+  one test-direction trial in twenty a moment part 4x too large (an R_fm error);
 - noise: 2% log-normal on the magnitude;
 - a fatiguing participant (the last one): efforts decline linearly to 75% by the end of the session, so the
   end cardinal efforts are about 25% below the start ones;
@@ -46,12 +47,13 @@ def _rotate(v: np.ndarray, angle_rad: float, rng: np.random.Generator) -> np.nda
     return n * (np.cos(angle_rad) * vh + np.sin(angle_rad) * a)
 
 
-def _perturb(u: np.ndarray, big: bool, rng: np.random.Generator) -> np.ndarray:
-    """A produced wrench direction near unit wrench ``u``: moment and force parts rotated, ratio jittered."""
+def _perturb(u: np.ndarray, big: bool, rng: np.random.Generator, ratio_error: bool = False) -> np.ndarray:
+    """A produced wrench direction near unit wrench ``u``: moment and force parts rotated, ratio jittered
+    (``ratio_error``: the moment part 4x too large, i.e. pushing about the wrong centre of rotation)."""
     ang = np.radians(rng.uniform(25, 45) if big else abs(rng.normal(0, 4)))
     M = _rotate(u[:3], ang if (big and rng.random() < 0.5) else np.radians(abs(rng.normal(0, 4))), rng)
     F = _rotate(u[3:], ang, rng)
-    M *= np.exp(rng.normal(0, 0.05))
+    M *= np.exp(rng.normal(0, 0.05)) * (4.0 if ratio_error else 1.0)
     w = np.r_[M, F]
     return w / np.linalg.norm(w)
 
@@ -108,7 +110,8 @@ def generate_example(config: Mapping, seed: int = 20261123, participants=("P01",
                 if t == 1 and mags[1] > 1.10 * mags[0]:
                     n_trials = 3
                 big = rng.random() < 0.125
-                u = _perturb(U6[k], big, rng)
+                ratio_error = block == "main" and rng.random() < 0.05
+                u = _perturb(U6[k], big, rng, ratio_error)
                 # magnitude along the target = mag: scale the produced wrench accordingly
                 ws = u * (mag / float(u @ U6[k]))
                 if frame == "pad":      # measured about the pad centre: M_pad = M_skull - p x F
