@@ -97,7 +97,7 @@ def _norm_unit(u: str) -> str:
 def _read_comments(path: Path) -> tuple[list[str], int]:
     comments: list[str] = []
     n = 0
-    with open(path, encoding="utf-8") as fh:
+    with open(path, encoding="utf-8-sig") as fh:
         for line in fh:
             if line.startswith("#"):
                 comments.append(line.rstrip("\n"))

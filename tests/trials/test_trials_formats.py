@@ -157,3 +157,10 @@ def test_bad_input_leaves_existing_outputs_untouched(tmp_path, directions):
                                                                             ("Mx", "My", "Mz", "Fx", "Fy", "Fz")]]
                                                          .to_numpy(float)) / directions.loc[0, "force_scale"]),
                                             atol=0.01)
+
+
+def test_participant_id_must_fit_the_max_force_table(tmp_path, directions):
+    p = write(tmp_path, ["lab 3,forehead,main,1,skull,0,0,-4.8,91.7,39.5,0"])
+    with pytest.raises(DataValidationError, match="must look like S003 or P01") as e:
+        read_trials(p, names(directions))
+    assert e.value.row == 1 and e.value.field == "participant"

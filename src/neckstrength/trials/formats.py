@@ -37,7 +37,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from neckstrength.io import Column, DataValidationError, Schema, read_table
+from neckstrength.io import MEASUREMENT_SCHEMA, Column, DataValidationError, Schema, read_table
 
 WRENCH = ("Mx", "My", "Mz", "Fx", "Fy", "Fz")
 
@@ -102,9 +102,10 @@ def read_trials(path: str | Path, directions: Sequence[str], frames: Sequence[st
     df["block"] = [b if b else "main" for b in df["block"]]
     known = set(directions) | set(CARDINAL)
     for r in df.itertuples():
-        if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_-]*", r.participant):
-            raise DataValidationError(path, f"participant id '{r.participant}' must start with a letter and hold only "
-                                      "letters, digits, _ or -", r.row, r.line, "participant")
+        if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_-]*", r.participant) or MEASUREMENT_SCHEMA.column(r.participant) is None:
+            raise DataValidationError(path, f"participant id '{r.participant}' must look like S003 or P01 (S + digits, "
+                                      "or P + letters, digits, _ or -): it becomes a column of the max-force table",
+                                      r.row, r.line, "participant")
         if r.direction not in known:
             raise DataValidationError(path, f"unknown test direction '{r.direction}' (configured: "
                                       f"{', '.join(directions)}; cardinal: {', '.join(CARDINAL)})",

@@ -88,7 +88,7 @@ def generate_example(config: Mapping, seed: int = 20261123, participants=("P01",
         gfac = {g: float(np.exp(rng.normal(0, 0.25))) for g in groups}
         f = np.array([model.strengths[j] * a * gfac[n.rsplit("-", 1)[0]] for j, n in enumerate(model.muscle_names)])
         truth += [{"participant": p, "muscle": n, "strength_N": f[j]} for j, n in enumerate(model.muscle_names)]
-        w, alpha, status = solve(model, f[None, :], Ut)
+        w, alpha, _ = solve(model, f[None, :], Ut)
         w, alpha = w[0], alpha[0]
         fatigue = pi == len(participants) - 1
         frame = "pad" if pi == 1 else "skull"
@@ -145,7 +145,7 @@ def write_example(config: Mapping, out_dir: str | Path, seed: int = 20261123) ->
     paths = {"trials": out / "trials.csv", "truth": out / "true_strengths.csv"}
     fmt = trials.copy()
     for c in WRENCH:
-        fmt[c] = fmt[c].map(lambda x: f"{x:.4f}" if c.startswith("M") else f"{x:.2f}")
+        fmt[c] = fmt[c].map("{:.4f}".format if c.startswith("M") else "{:.2f}".format)
     atomic_write_csv(fmt, paths["trials"], hdr, float_format="%.5f")
     atomic_write_csv(truth, paths["truth"], hdr[:2] + ["units: strength_N=N; true strengths of the s3m24 groups"],
                      float_format="%.3f")
