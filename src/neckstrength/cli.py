@@ -83,10 +83,18 @@ def _cmd_validate(args) -> int:
     return 0
 
 
+def _config(path) -> dict:
+    """The config (defaults of every setting); a missing file is an input error, not a traceback."""
+    if not Path(path).is_file():
+        raise DataValidationError(path, "config file not found: run from the repository root (config/config.yaml) "
+                                  "or give --config")
+    return load_config(path)
+
+
 def _direction_names(config_path) -> list[str]:
     from neckstrength.config import build_directions
 
-    return list(build_directions(load_config(config_path))["name"])
+    return list(build_directions(_config(config_path))["name"])
 
 
 def _trial_settings(args, cfg):
@@ -105,7 +113,7 @@ def _cmd_validate_trials(args) -> int:
     from neckstrength.config import build_directions
     from neckstrength.trials import import_trials
 
-    cfg = load_config(args.config)
+    cfg = _config(args.config)
     res = import_trials(args.file, build_directions(cfg), _trial_settings(args, cfg), args.signals)
     s = res.summary
     print(f"{args.file}: OK ({s['trials']} trials, {s['participants']} participants; {s['matched']} matched, "
@@ -118,7 +126,7 @@ def _cmd_import_trials(args) -> int:
     from neckstrength.config import build_directions
     from neckstrength.trials import import_to_folder
 
-    cfg = load_config(args.config)
+    cfg = _config(args.config)
     res, outputs = import_to_folder(args.trials, build_directions(cfg), args.out, _trial_settings(args, cfg),
                                     args.signals)
     s = res.summary
@@ -138,7 +146,7 @@ def _cmd_import_trials(args) -> int:
 def _cmd_example_lab(args) -> int:
     from neckstrength.trials.synthetic import write_example
 
-    paths = write_example(load_config(args.config), args.out, args.seed)
+    paths = write_example(_config(args.config), args.out, args.seed)
     print(f"wrote SYNTHETIC {paths['trials']} and {paths['truth']} (seed {args.seed})")
     return 0
 
@@ -148,7 +156,7 @@ def _cmd_estimate(args) -> int:
 
     from neckstrength.estimate import run_estimate
 
-    cfg = load_config(args.config)
+    cfg = _config(args.config)
     out = Path(args.out)
     measurements, activations = args.measurements, args.activations
     if args.trials:
@@ -184,7 +192,7 @@ def _cmd_c3d(args) -> int:
     from neckstrength.io import atomic_write_csv
     from neckstrength.trials.c3d import c3d_to_tables
 
-    cfg = load_config(args.config)
+    cfg = _config(args.config)
     channels = {}
     for item in args.channel or []:
         if "=" not in item:
