@@ -7,6 +7,10 @@ Verbs:
   validate       check a measurement / activation / test-point file and report the first problem
   session        clinician-in-the-loop session: start, resume, replay (docs/session.md)
   diagnose       sim-to-real gap diagnosis of a data set: where, which effect, how far (docs/gap_diagnosis.md)
+  import-trials  a lab's trial table -> max-force / activation tables + quality report (docs/trials.md)
+  estimate       strengths of one participant from a table or trials: Algorithm 4, ABC-SMC or joint estimator
+  example-lab    write the SYNTHETIC example lab data set (trials generated from the model)
+  c3d-to-trials  C3D files (one per trial, listed in a manifest) -> trial table + EMG signals (needs 'c3d' extra)
 """
 
 from __future__ import annotations
@@ -69,10 +73,148 @@ def _cmd_validate(args) -> int:
     from neckstrength.io import read_activations, read_measurements
     from neckstrength.model.geometry import read_test_points
 
-    reader = {"measurements": read_measurements, "activations": read_activations,
-              "points": read_test_points}[args.kind]
-    df = reader(args.file)
+    if args.kind == "trials":
+        return _cmd_validate_trials(args)
+    if args.kind in ("measurements", "activations"):
+        names = _direction_names(args.config)
+        reader = {"measurements": read_measurements, "activations": read_activations}[args.kind]
+        df = reader(args.file, names)
+    else:
+        df = read_test_points(args.file)
     print(f"{args.file}: OK ({len(df)} rows, columns: {', '.join(map(str, df.columns))})")
+    return 0
+
+
+def _config(path) -> dict:
+    """The config (defaults of every setting); a missing file is an input error, not a traceback."""
+    if not Path(path).is_file():
+        raise DataValidationError(path, "config file not found: run from the repository root (config/config.yaml) "
+                                  "or give --config")
+    return load_config(path)
+
+
+def _direction_names(config_path) -> list[str]:
+    from neckstrength.config import build_directions
+
+    return list(build_directions(_config(config_path))["name"])
+
+
+def _trial_settings(args, cfg):
+    from neckstrength.trials import ImportSettings
+
+    settings = dict((cfg.get("trials") or {}).get("settings") or {})
+    for key, val in (("angle_deg", getattr(args, "angle_deg", None)), ("ratio_tol", getattr(args, "ratio_tol", None)),
+                     ("mismatch_action", getattr(args, "mismatch", None)),
+                     ("pad_to_c0_m", getattr(args, "pad_offset", None))):
+        if val is not None:
+            settings[key] = val
+    return ImportSettings.from_mapping(settings)
+
+
+def _cmd_validate_trials(args) -> int:
+    from neckstrength.config import build_directions
+    from neckstrength.trials import import_trials
+
+    cfg = _config(args.config)
+    res = import_trials(args.file, build_directions(cfg), _trial_settings(args, cfg), args.signals)
+    s = res.summary
+    print(f"{args.file}: OK ({s['trials']} trials, {s['participants']} participants; {s['matched']} matched, "
+          f"{s['kept']} kept, {s['excluded_trials']} not used, {s['missing_directions']} direction(s) without a value; "
+          f"run import-trials for the report)")
+    return 0
+
+
+def _cmd_import_trials(args) -> int:
+    from neckstrength.config import build_directions
+    from neckstrength.trials import import_to_folder
+
+    cfg = _config(args.config)
+    res, outputs = import_to_folder(args.trials, build_directions(cfg), args.out, _trial_settings(args, cfg),
+                                    args.signals)
+    s = res.summary
+    print(f"{s['trials']} trials, {s['participants']} participants ({', '.join(s['participant_ids'])}): "
+          f"{s['matched']} matched the target direction, {s['excluded_mismatch']} excluded as not matched, "
+          f"{s['kept']} kept (largest valid per direction), {s['missing_directions']} participant x direction "
+          f"cell(s) without a value")
+    for r in res.fatigue.to_dict("records"):
+        print(f"  {r['participant']}: cardinal end vs start {r['mean_change_rel']:+.1%} "
+              f"({'FATIGUED' if r['fatigued'] else 'ok'})")
+    for m in s["emg_missing"]:
+        print(f"  {m['participant']}: EMG channel {m['channel']} not recorded")
+    print(f"wrote {outputs['max_force']}, {outputs['activation']}, {outputs['report']} (+ exclusions, figure)")
+    return 0
+
+
+def _cmd_example_lab(args) -> int:
+    from neckstrength.trials.synthetic import write_example
+
+    paths = write_example(_config(args.config), args.out, args.seed)
+    print(f"wrote SYNTHETIC {paths['trials']} and {paths['truth']} (seed {args.seed})")
+    return 0
+
+
+def _cmd_estimate(args) -> int:
+    import contextlib
+
+    from neckstrength.estimate import run_estimate
+
+    cfg = _config(args.config)
+    out = Path(args.out)
+    measurements, activations = args.measurements, args.activations
+    if args.trials:
+        from neckstrength.config import build_directions
+        from neckstrength.trials import import_to_folder
+
+        with contextlib.redirect_stdout(sys.stderr):
+            _, outputs = import_to_folder(args.trials, build_directions(cfg), out / "import",
+                                          _trial_settings(args, cfg), args.signals)
+        measurements, activations = outputs["max_force"], activations or outputs["activation"]
+        print(f"imported trials -> {outputs['max_force']} (quality report {outputs['report']})", file=sys.stderr)
+    if measurements is None:
+        print("error: give --measurements (a Table A.2-layout file) or --trials", file=sys.stderr)
+        return 2
+    with contextlib.redirect_stdout(sys.stderr):
+        s = run_estimate(cfg, args.model, args.participant, measurements, out, args.method, activations, args.seed,
+                         args.emg, args.max_iter, args.threads, args.criterion,
+                         log=lambda m: print(m, file=sys.stderr, flush=True), figures=not args.no_figures)
+    head = f"{args.method} estimate, model {args.model}, participant {args.participant}, seed {s['seed']}"
+    if "iterations" in s:
+        head += f": {s['iterations']} iterations, converged {s['converged']}, D(f_c) = {s['D_fc']:.3f}"
+    print(head)
+    if s["directions_dropped"]:
+        print(f"directions without a value (not used): {', '.join(s['directions_dropped'])}")
+    print(s["table"].to_string(index=False, float_format=lambda x: f"{x:.4g}"))
+    figs = args.method != "joint" and not args.no_figures
+    print(f"results{' and figures' if figs else ''} in {out}/ (run.json records the inputs and the seed)")
+    return 0
+
+
+def _cmd_c3d(args) -> int:
+    from neckstrength.config import build_directions
+    from neckstrength.io import atomic_write_csv
+    from neckstrength.trials.c3d import c3d_to_tables
+
+    cfg = _config(args.config)
+    channels = {}
+    for item in args.channel or []:
+        if "=" not in item:
+            print(f"error: --channel {item!r}: expected NAME=LABEL (e.g. Fx=Force.Fx1)", file=sys.stderr)
+            return 2
+        k, v = item.split("=", 1)
+        channels[k.strip()] = v.strip()
+    s = _trial_settings(args, cfg)
+    from neckstrength.trials import default_frames
+
+    trials, signals = c3d_to_tables(args.manifest, build_directions(cfg), channels,
+                                    default_frames(s.pad_to_c0_m, s.frames))
+    out = Path(args.out)
+    atomic_write_csv(trials, out / "trials.csv", [f"from C3D files listed in {args.manifest}",
+                                                   "units: Mx=N*m; My=N*m; Mz=N*m; Fx=N; Fy=N; Fz=N; peak_time_s=s"],
+                     float_format="%.6g")
+    atomic_write_csv(signals, out / "signals.csv", [f"EMG analog channels from C3D files listed in {args.manifest}",
+                                                     "units: time_s=s"], float_format="%.6g")
+    print(f"wrote {out / 'trials.csv'} ({len(trials)} trials) and {out / 'signals.csv'}; next: neckstrength "
+          f"import-trials {out / 'trials.csv'} --signals {out / 'signals.csv'} --out <folder>")
     return 0
 
 
@@ -165,8 +307,10 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=_cmd_max_wrench)
 
     d = sub.add_parser("validate", help="validate an input file")
-    d.add_argument("kind", choices=["measurements", "activations", "points"])
+    d.add_argument("kind", choices=["measurements", "activations", "points", "trials"])
     d.add_argument("file")
+    d.add_argument("--config", default="config/config.yaml", help="test directions (names) come from this config")
+    d.add_argument("--signals", default=None, help="trials: EMG signals file (docs/trials.md)")
     d.set_defaults(func=_cmd_validate)
 
     d = sub.add_parser("session", help="clinician-in-the-loop session (propose, measure, update, stop)")
@@ -203,6 +347,57 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--effects", default=None, help="comma-separated effects (default: config gap.effects)")
     d.add_argument("--out", default=None, help="output folder (default results/gap/<model>/<dataset>)")
     d.set_defaults(func=_cmd_diagnose)
+
+    def trial_options(a):
+        a.add_argument("--signals", default=None, help="EMG signals file: raw EMG per sample (docs/trials.md)")
+        a.add_argument("--angle-deg", type=float, default=None, help="direction window, deg (default 20)")
+        a.add_argument("--ratio-tol", type=float, default=None, help="R_fm window (default 0.10)")
+        a.add_argument("--mismatch", choices=["drop", "flag"], default=None,
+                       help="trials outside the window: drop (default) or keep flagged")
+        a.add_argument("--pad-offset", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                       help="C0-C1 relative to the lower posterior pad centre, m (default 0.08 -0.02 0)")
+
+    d = sub.add_parser("import-trials", help="trial table -> max-force and activation tables + quality report")
+    d.add_argument("trials", help="trial table (CSV, docs/trials.md)")
+    d.add_argument("--out", required=True, help="output folder")
+    d.add_argument("--config", default="config/config.yaml")
+    trial_options(d)
+    d.set_defaults(func=_cmd_import_trials)
+
+    d = sub.add_parser("estimate", help="estimate one participant's strengths from a table or trials")
+    src = d.add_mutually_exclusive_group(required=True)
+    src.add_argument("--measurements", default=None, help="max-force table, Table A.2 layout")
+    src.add_argument("--trials", default=None, help="trial table: imported first into <out>/import")
+    d.add_argument("--participant", required=True, help="participant column (e.g. S003, P01)")
+    d.add_argument("--activations", default=None, help="activation table, Table A.3 layout (for --emg a3_band)")
+    d.add_argument("--model", default="p2m7", help="p2m7, p3m12, s3m24 or <kinematic>-<grouping>")
+    d.add_argument("--method", choices=["alg4", "smc", "joint"], default="alg4",
+                   help="alg4: Algorithm 4 (Ch. 5); smc: Algorithm 4 then ABC-SMC; joint: joint estimator (Ch. 6)")
+    d.add_argument("--out", required=True, help="output folder (results, figures, run.json)")
+    d.add_argument("--config", default="config/config.yaml", help="defaults of every setting (not edited)")
+    d.add_argument("--seed", type=int, default=None, help="default: the config's seed (recorded in run.json)")
+    d.add_argument("--emg", choices=["none", "a3_band"], default="none", help="EMG bounds (as chapter5.participant_emg)")
+    d.add_argument("--max-iter", type=int, default=None, help="Algorithm 4 iterations cap (default: config)")
+    d.add_argument("--threads", type=int, default=1)
+    d.add_argument("--criterion", default="joint_eig", choices=["joint_eig", "marginal_entropy"],
+                   help="joint: test-selection criterion")
+    d.add_argument("--no-figures", action="store_true", help="skip the figures (Algorithm 4 / ABC-SMC)")
+    trial_options(d)
+    d.set_defaults(func=_cmd_estimate)
+
+    d = sub.add_parser("c3d-to-trials", help="C3D files of a manifest -> trial table + EMG signals (c3d extra)")
+    d.add_argument("manifest", help="CSV: path,participant,direction,block,trial,frame (one C3D file per trial)")
+    d.add_argument("--out", required=True)
+    d.add_argument("--config", default="config/config.yaml")
+    d.add_argument("--channel", action="append", metavar="NAME=LABEL",
+                   help="analog label of Fx..Mz or an EMG channel (SCM_R, ...) when it differs (repeatable)")
+    d.set_defaults(func=_cmd_c3d)
+
+    d = sub.add_parser("example-lab", help="write the SYNTHETIC example lab data set")
+    d.add_argument("--out", default="data/example_lab")
+    d.add_argument("--config", default="config/config.yaml")
+    d.add_argument("--seed", type=int, default=20261123)
+    d.set_defaults(func=_cmd_example_lab)
     return p
 
 

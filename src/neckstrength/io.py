@@ -42,6 +42,8 @@ class DataValidationError(ValueError):
         where = [self.path]
         if row is not None:
             where.append(f"row {row}" + (f" (line {line})" if line is not None else ""))
+        elif line is not None:
+            where.append(f"line {line}")
         if field_name is not None:
             where.append(f"field '{field_name}'")
         super().__init__(", ".join(where) + ": " + problem)
@@ -95,7 +97,7 @@ def _norm_unit(u: str) -> str:
 def _read_comments(path: Path) -> tuple[list[str], int]:
     comments: list[str] = []
     n = 0
-    with open(path, encoding="utf-8") as fh:
+    with open(path, encoding="utf-8-sig") as fh:
         for line in fh:
             if line.startswith("#"):
                 comments.append(line.rstrip("\n"))
@@ -119,6 +121,23 @@ def declared_units(comments: Iterable[str]) -> dict[str, str]:
     return units
 
 
+def check_text_file(path: str | Path) -> None:
+    """Raise :class:`DataValidationError` unless ``path`` is UTF-8 text (no NUL byte), naming the line."""
+    path = Path(path)
+    if path.is_dir():
+        raise DataValidationError(path, "is a folder, not a CSV file")
+    data = path.read_bytes()
+    nul = data.find(b"\x00")
+    if nul >= 0:
+        raise DataValidationError(path, f"binary file (NUL byte at offset {nul}); expected a UTF-8 CSV text file",
+                                  line=data.count(b"\n", 0, nul) + 1)
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataValidationError(path, f"not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start}); "
+                                  "save the file as UTF-8 CSV", line=data.count(b"\n", 0, exc.start) + 1) from None
+
+
 def read_table(path: str | Path, schema: Schema) -> pd.DataFrame:
     """Read a CSV and validate it against ``schema``.
 
@@ -129,6 +148,7 @@ def read_table(path: str | Path, schema: Schema) -> pd.DataFrame:
     path = Path(path)
     if not path.exists():
         raise DataValidationError(path, "file not found")
+    check_text_file(path)
     comments, n_comment = _read_comments(path)
     try:
         raw = pd.read_csv(path, comment=None, skiprows=n_comment, dtype=str,

@@ -247,6 +247,7 @@ def final_outputs():
     out += gap_outputs()
     out += chapter6_outputs()
     out += chapter3_outputs()
+    out += [f"results/trials/{t}/quality_report.md" for t in config.get("trials", {}).get("datasets", {})]
     out += report_outputs()
     return out
 
