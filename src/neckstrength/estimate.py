@@ -2,9 +2,9 @@
 
 :func:`run_estimate` takes the default configuration (``config/config.yaml``; every science setting from its
 ``chapter5`` / ``chapter6`` sections), points it at the user's max-force table and calls the very functions the
-pipeline rules call: :func:`neckstrength.pipeline.chapter5.stage_abc_estimate` (+ ``stage_abc_figures``) for
-Algorithm 4, then ``stage_abc_smc`` for ABC-SMC (compared with Algorithm 4 at equal budget, as in the
-pipeline), and :func:`neckstrength.pipeline.chapter6.stage_joint_run` for the joint estimator.
+pipeline rules call: :func:`neckstrength.pipeline.chapter5.chapter5_estimate` (+ ``chapter5_figures``) for
+Algorithm 4, then ``chapter5_smc`` for ABC-SMC (compared with Algorithm 4 at equal budget, as in the
+pipeline), and :func:`neckstrength.pipeline.chapter6.chapter6_joint` for the joint estimator.
 
 Directions without a value for the participant (e.g. no valid trial) are dropped from the fit and listed;
 the Eq. 5.3 bootstrap direction must be present. The seed is the config's unless given, and is recorded in
@@ -109,16 +109,16 @@ def run_estimate(config: Mapping, model_name: str, participant: str, measurement
                "emg": emg, "directions_used": prep["used"], "directions_dropped": prep["dropped"],
                "neckstrength": __version__}
     if method in ("alg4", "smc"):
-        from neckstrength.pipeline.chapter5 import OUTPUTS, stage_abc_estimate, stage_abc_figures
+        from neckstrength.pipeline.chapter5 import OUTPUTS, chapter5_estimate, chapter5_figures
 
         outputs = {k: out / f"{k}.csv" for k in OUTPUTS}
         outputs["summary"] = out / "summary.json"
-        stage_abc_estimate(cfg, model_name, participant, prep["directions"], outputs, threads=threads)
+        chapter5_estimate(cfg, model_name, participant, prep["directions"], outputs, threads=threads)
         figs = {"traces": out / "fig_estimate_traces.png", "dk_hist": out / "fig_dk_hist.png",
                 "d_dir": out / "fig_d_by_direction.png", "parallel": out / "fig_parallel.png",
                 "radar": out / "fig_fit_radar.png"}
         if figures:
-            stage_abc_figures(cfg, model_name, participant, prep["directions"],
+            chapter5_figures(cfg, model_name, participant, prep["directions"],
                               {k: str(v) for k, v in outputs.items()}, figs)
         meta = json.loads((out / "summary.json").read_text())
         est = pd.read_csv(outputs["estimate"], comment="#")
@@ -126,17 +126,17 @@ def run_estimate(config: Mapping, model_name: str, participant: str, measurement
                         "scale_a": meta["scale_a"], "estimate": str(outputs["estimate"])})
         table = est.groupby("parameter", sort=False)[["f_base", "f_0", "f_c", "sigma_c"]].first().reset_index()
         if method == "smc":
-            from neckstrength.pipeline.chapter5 import stage_abc_smc
+            from neckstrength.pipeline.chapter5 import chapter5_smc
 
-            smc = stage_abc_smc(cfg, model_name, participant, prep["directions"], outputs["estimate"],
+            smc = chapter5_smc(cfg, model_name, participant, prep["directions"], outputs["estimate"],
                                 out / "summary.json", out / "smc_vs_alg4.csv", out / "smc_generations.csv")
             summary["smc"] = str(out / "smc_vs_alg4.csv")
             table = smc[["muscle", "alg4_f_c", "smc_mean", "smc_q05", "smc_q95"]]
     else:
-        from neckstrength.pipeline.chapter6 import stage_joint_run
+        from neckstrength.pipeline.chapter6 import chapter6_joint
 
         cfg["chapter6"] = {**cfg["chapter6"], "joint": {**cfg["chapter6"].get("joint", {}), "criteria": [criterion]}}
-        stage_joint_run(cfg, model_name, participant, prep["directions"], out / "joint_iterations.csv",
+        chapter6_joint(cfg, model_name, participant, prep["directions"], out / "joint_iterations.csv",
                         out / "joint_estimate.csv", out / "joint_summary.json")
         est = pd.read_csv(out / "joint_estimate.csv", comment="#")
         summary["estimate"] = str(out / "joint_estimate.csv")

@@ -3,9 +3,13 @@
 # Trial tables: config trials.datasets {name: file}; settings: config trials.settings.
 
 
+def trials_table(wildcards):
+    return config["trials"]["datasets"][wildcards.trialset]
+
+
 rule trials_import:
     input:
-        trials=lambda wc: config["trials"]["datasets"][wc.trialset],
+        trials=trials_table,
         directions="results/geometry/directions.csv",
     output:
         max_force="results/trials/{trialset}/max_force.csv",
@@ -24,8 +28,7 @@ rule trials_import:
         ),
         summary="results/trials/{trialset}/summary.json",
     params:
-        signals=lambda wc: (config["trials"].get("signals") or {}).get(wc.trialset),
-        settings=config["trials"]["settings"],
+        settings=settings("trials.settings", "trials.signals.{trialset}"),
     wildcard_constraints:
         trialset=r"[A-Za-z][A-Za-z0-9_-]*",
     log:
