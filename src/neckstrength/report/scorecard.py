@@ -446,17 +446,21 @@ def recovered_strengths(config: Mapping) -> dict[str, dict]:
 
 
 def supplemented_groups(config: Mapping, model: str) -> dict[str, str]:
-    """Groups of ``model`` whose membership ``grouping_supplements.csv`` changes in this configuration
-    (group -> the supplements), as groups are named in the model's printed grouping table."""
-    m = config.get("model", {})
-    if not m.get("grouping_supplements", True):
+    """Groups of ``model`` whose membership an applied supplement with basis 'fit' changes (a row of
+    ``grouping_supplements.csv`` that exists only to reproduce a printed value; applied with
+    ``model.grouping_supplements: all``): group (as named in the printed grouping table) -> the supplements.
+    Supplements justified by the printed tables or by anatomy (basis 'printed' / 'anatomy') calibrate nothing."""
+    from neckstrength.model.reduction import supplement_level
+
+    level = supplement_level(config.get("model", {}).get("grouping_supplements", True))
+    if level != "all":
         return {}
     thesis_dir = Path(config.get("data", {}).get("thesis_dir", "data/thesis"))
     path = thesis_dir / "grouping_supplements.csv"
     if not path.exists():
         return {}
     sup = _read(path)
-    sup = sup[sup["model"] == model]
+    sup = sup[(sup["model"] == model) & (sup["basis"] == "fit")] if "basis" in sup else sup.iloc[:0]
     printed = {}
     if (thesis_dir / GROUPING_FILES.get(model, "-")).exists():
         g = _read(thesis_dir / GROUPING_FILES[model])
@@ -486,8 +490,8 @@ def _group_calibration(ctx: Context, model: str, groups: pd.DataFrame | None) ->
             why.append(f"{len(recm)} of its {len(members)} member strengths recovered from Table B.3 "
                        f"({', '.join(recm)})")
         if base in sup or g in sup:
-            why.append(f"membership edited by grouping_supplements.csv to reproduce the printed table "
-                       f"({sup.get(base, sup.get(g))})")
+            why.append(f"membership edited by grouping_supplements.csv only to reproduce the printed table "
+                       f"(basis 'fit': {sup.get(base, sup.get(g))})")
         if not why:
             continue
         if model == "s3m24" and recm and not (base in sup or g in sup):
