@@ -479,6 +479,9 @@ def _group_calibration(ctx: Context, model: str, groups: pd.DataFrame | None) ->
     sup = supplemented_groups(ctx.config, model)
     out = {}
     if groups is None:
+        if rec or sup:
+            raise FileNotFoundError(f"{ctx.rel}: groups.csv beside it is needed to tell calibrated from independent "
+                                    "items (recovered strengths / supplements are in use)")
         return out
     for r in groups.to_dict("records"):
         g = str(r["group"])
