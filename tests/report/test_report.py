@@ -19,12 +19,13 @@ import pytest
 import yaml
 
 from neckstrength.report.runinfo import SOFTWARE
-from neckstrength.report.scorecard import COLUMNS, MATCHES, VERDICTS
+from neckstrength.report.scorecard import (CALIBRATED, COLUMNS, CONCLUSION_TESTS, INDEPENDENT, KINDS, MATCHES,
+                                           SAME_CONCLUSION, SUMMARY_COLUMNS, VERDICTS)
 
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 CI = ["--configfile", "config/config.ci.yaml"]
-FRONT_PAGE = ("What was reproduced, and how close", "Scored items per chapter and verdict",
-              "Run time and peak memory per rule", "Software versions, platform and seeds")
+FRONT_PAGE = ("What was reproduced, and how close", "Independent items per chapter",
+              "Calibrated items per chapter", "Run time and peak memory", "Software versions and seeds")
 
 
 def run(cmd, cwd, timeout=900):
@@ -134,14 +135,41 @@ def test_scorecard_rows_and_verdicts(built):
     assert sc["item"].notna().all() and sc["thesis"].notna().all() and sc["tolerance"].notna().all()
     # every difference has a reason
     assert sc.loc[sc["verdict"] != MATCHES, "reason"].fillna("").str.len().gt(0).all()
-    # Appendix B parameters are deterministic: they all match within print rounding
+    assert set(sc["kind"]) <= set(KINDS) and sc["basis"].fillna("").str.len().gt(0).all()
+    # Appendix B parameters are deterministic: they all match within print rounding (reduced config)
     assert (sc.loc[sc["chapter"] == "Appendix B", "verdict"] == MATCHES).all()
-    summ = pd.read_csv(built / "results/report/scorecard_summary.csv", comment="#").set_index("chapter")
-    assert int(summ.loc["all", "items"]) == len(sc)
+    # degrees of freedom of the recovered strengths: Table B.3 has calibrated AND independent (over-determined) rows
+    b3 = sc[sc["source"].str.startswith("Table B.3")]
+    assert (b3["kind"] == CALIBRATED).sum() > 0 and (b3["kind"] == INDEPENDENT).sum() > 0
+    assert b3.loc[b3["kind"] == INDEPENDENT, "basis"].str.contains("print units").all()
+    # the SYNTHETIC Chapter 3 cohort is calibrated to the printed numbers: none of its rows is independent
+    assert (sc.loc[sc["chapter"] == "Chapter 3", "kind"] == CALIBRATED).all()
+    # 'same conclusion' only from a conclusion test whose chance rate is at most 0.2
+    same = sc[sc["verdict"] == SAME_CONCLUSION]
+    assert (same["chance_rate"] <= 0.2).all() and same["test"].isin(list(CONCLUSION_TESTS)).all()
+    summ = pd.read_csv(built / "results/report/scorecard_summary.csv", comment="#")
+    assert list(summ.columns) == SUMMARY_COLUMNS
+    assert len(summ.columns) <= 7  # narrow: the front page shows it
+    tot = summ[summ["chapter"] == "all"].set_index("kind")
+    assert int(tot["items"].sum()) == len(sc)
+    for kind in KINDS:
+        assert int(tot.loc[kind, "items"]) == (sc["kind"] == kind).sum()
     for c in chapters:
-        s = summ.loc[c]
-        assert s["items"] == (sc["chapter"] == c).sum()
-        assert s["matches"] + s["same_conclusion_different_number"] + s["differs"] == s["items"]
+        s = summ[summ["chapter"] == c]
+        assert int(s["items"].sum()) == (sc["chapter"] == c).sum()
+        assert (s["matches"] + s["same_conclusion"] + s["differs"] == s["items"]).all()
+    # every conclusion test applied in this run has its chance rate in the tolerance table
+    tol = pd.read_csv(built / "results/report/scorecard_tolerances.csv", comment="#")
+    tests = tol[tol["kind"] == "conclusion test"].set_index("key")
+    assert set(tests.index) == set(CONCLUSION_TESTS)
+    for key in set(sc["test"].dropna()) - {""}:
+        assert 0 <= tests.loc[key, "chance_rate"] <= 1 and tests.loc[key, "items"] == (sc["test"] == key).sum()
+        assert tests.loc[key, "used"] == ("yes" if tests.loc[key, "chance_rate"] <= 0.2 else
+                                          "no: chance rate above 0.2")
+    # the summary header quotes independent counts first
+    head = [ln for ln in (built / "results/report/scorecard_summary.csv").read_text().splitlines()
+            if ln.startswith("#")]
+    assert any(re.match(r"# \d+ independent items: .*; \d+ calibrated items", ln) for ln in head), head
 
 
 def test_front_page_summary_runtime_environment(built):

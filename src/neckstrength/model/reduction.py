@@ -88,12 +88,24 @@ def read_grouping(path: str | Path) -> pd.DataFrame:
 SUPPLEMENT_SCHEMA = Schema(
     "grouping supplements",
     (Column("model", "str"), Column("action", "str", choices=("add", "exclude")),
-     Column("group", "str", allow_missing=True), Column("muscle", "str"), Column("evidence", "str")))
+     Column("group", "str", allow_missing=True), Column("muscle", "str"),
+     Column("basis", "str", choices=("printed", "anatomy", "fit")), Column("evidence", "str")))
 
 
-def read_grouping_supplements(path: str | Path, model: str) -> pd.DataFrame:
+def supplement_level(value: bool | str) -> str:
+    """Config ``model.grouping_supplements``: 'anatomy' (rows justified by the printed tables or anatomy), 'all'
+    (also rows that exist only to reproduce a printed value, basis 'fit'), 'none'; true = 'all', false = 'none'."""
+    level = {True: "all", False: "none"}.get(value, value) if isinstance(value, bool) else str(value)
+    if level not in ("all", "anatomy", "none"):
+        raise ValueError(f"model.grouping_supplements: {value!r} (use anatomy, all or none)")
+    return level
+
+
+def read_grouping_supplements(path: str | Path, model: str, level: bool | str = "all") -> pd.DataFrame:
     df = read_table(path, SUPPLEMENT_SCHEMA)
-    return df[df["model"] == model].reset_index(drop=True)
+    lv = supplement_level(level)
+    keep = (df["model"] == model) & {"all": True, "anatomy": df["basis"] != "fit", "none": False}[lv]
+    return df[keep].reset_index(drop=True)
 
 
 def apply_supplements(table: pd.DataFrame, supplements: pd.DataFrame | None) -> pd.DataFrame:
@@ -271,18 +283,21 @@ def scale_strengths(full: FullModel, mask: np.ndarray, factor: float) -> FullMod
 
 
 def named_model(full: FullModel, model: str, thesis_dir: str | Path | None = None,
-                grouping_supplements: bool = True, signature_tol: float = 1e-3) -> ReducedModel:
+                grouping_supplements: bool | str = True, signature_tol: float = 1e-3) -> ReducedModel:
     """One of the thesis's named models (p2m7, p3m12, s3m24) or '{kinematic}-{grouping}'.
 
     For named models, ``grouping_supplements`` applies ``grouping_supplements.csv``
-    (the corrections that make the printed groupings reproduce Tables B.5/B.7).
+    (the corrections that make the printed groupings reproduce Tables B.5/B.7): True / 'all' every row,
+    'anatomy' the rows justified by the printed tables or by anatomy (not those that exist only to hit a printed
+    value, basis 'fit'), False / 'none' none.
     """
     if model in NAMED_MODELS:
         k, g = NAMED_MODELS[model]
         sup = None
-        if grouping_supplements and thesis_dir is not None \
+        if supplement_level(grouping_supplements) != "none" and thesis_dir is not None \
                 and (Path(thesis_dir) / "grouping_supplements.csv").exists():
-            sup = read_grouping_supplements(Path(thesis_dir) / "grouping_supplements.csv", model)
+            sup = read_grouping_supplements(Path(thesis_dir) / "grouping_supplements.csv", model,
+                                            grouping_supplements)
         return reduce_model(full, k, g, thesis_dir, name=model, signature_tol=signature_tol, supplements=sup)
     if "-" in model:
         k, g = model.split("-", 1)

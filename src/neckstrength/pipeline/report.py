@@ -8,7 +8,8 @@ from typing import Iterable, Mapping, Sequence
 import pandas as pd
 
 from neckstrength.report.runinfo import environment_table, runtime_by_rule, runtime_table
-from neckstrength.report.scorecard import build_scorecard, header_lines, summarize, tolerance_table, tolerances
+from neckstrength.report.scorecard import (build_scorecard, header_lines, headline, summarize, tolerance_table,
+                                          tolerances)
 
 
 def report_runtime(metadata_dir: str | Path, out_jobs, out_by_rule, exclude_rules: Iterable[str] = ()) -> pd.DataFrame:
@@ -50,11 +51,13 @@ def report_scorecard(config: Mapping, inputs: Sequence[str], out_table, out_summ
     atomic_write_csv(scored, out_table, header_lines(config, tols), float_format="%.5g")
     summary = summarize(scored, skipped)
     atomic_write_csv(summary, out_summary,
-                     ["thesis scorecard summary: items per chapter and verdict (results/report/scorecard.csv)",
+                     ["thesis scorecard summary: items per chapter, kind and verdict (results/report/scorecard.csv)",
+                      headline(summary),
                       "not_evaluated: printed claims this configuration cannot check (variants not computed): "
                       + ("; ".join(skipped["item"]) if len(skipped) else "none")])
-    atomic_write_csv(tolerance_table(tols), out_tolerances,
+    atomic_write_csv(tolerance_table(tols, scored.attrs.get("chance")), out_tolerances,
                      ["scorecard tolerances and conclusion thresholds (neckstrength.report.scorecard.TOLERANCES), each with "
-                      "its reasoning; overridden = set in config report.tolerances"])
+                      "its reasoning; overridden = set in config report.tolerances; conclusion tests beside their "
+                      "tolerance with their chance rate in this run (used only if <= conclusion_chance_max)"])
     print(summary.to_string(index=False))
     return summary

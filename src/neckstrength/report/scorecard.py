@@ -1,16 +1,35 @@
-"""Thesis scorecard: every number the thesis prints that the pipeline reproduces, ours beside it, with a verdict.
+"""Thesis scorecard: every number the thesis prints that the pipeline reproduces, ours beside it, with a verdict
+and a *kind* that says whether the agreement is evidence of reproduction at all.
 
 One row per printed number (or qualitative claim):
 
-    chapter, source, item, thesis, ours, difference, verdict, tolerance, conclusion, reason, file
+    chapter, source, item, kind, thesis, ours, difference, verdict, tolerance, conclusion, test, chance_rate,
+    reason, basis, file
+
+Kinds (:data:`KINDS`):
+
+``independent``
+    no input of the computation was derived from, fitted or tuned toward the compared thesis number.
+``calibrated``
+    an input was fitted or drawn to thesis numbers that determine the compared one: strengths recovered from
+    Table B.3 (for each B.3 group as many items as unknowns were solved for; the over-determined rest stay
+    independent, with their residual in print units in ``basis``), groups of Tables B.5/B.7 that contain recovered
+    strengths or were edited by ``grouping_supplements.csv``, and every row computed from the SYNTHETIC Chapter 3
+    cohort (drawn to Table 3.2 and the printed limits of agreement). Agreement of a calibrated row shows that the
+    calibration worked, not that the thesis was reproduced.
+
+Inputs used as printed (Table B.1 strengths, Tables A.2/A.3, f_a of the simulated data sets) are not rows at all.
 
 Verdict classes (:data:`VERDICTS`), decided per row in this order:
 
 ``matches``
     ours agrees with the printed value within the tolerance stated for its source (:data:`TOLERANCES`).
 ``same conclusion, different number``
-    outside that tolerance, but the conclusion the thesis draws from the number also holds for ours (each source's
-    conclusion test is spelled out in the ``conclusion`` column and in :data:`TOLERANCES`).
+    outside that tolerance, but the conclusion the thesis draws from the number also holds for ours, by a
+    *conclusion test* (:data:`CONCLUSION_TESTS`) whose agreement by chance is small: each test's chance rate is
+    computed on the run's own items by permuting our compared values within the test's strata
+    (:func:`chance_rates`, seeded), and a test whose chance rate exceeds ``conclusion_chance_max`` (20 %) is not
+    used (its rows can only match or differ; the ``conclusion`` column says so).
 ``differs``
     neither.
 
@@ -25,10 +44,9 @@ one entry here; the Snakemake rule takes its inputs from the pipeline's final ou
 
 Not scored, on purpose:
 
-- Table B.1 strengths, Table A.2/A.3 and f_a of the simulated data sets: these are the pipeline's *inputs*
-  (printed values used as they are), not numbers it reproduces.
-- Blank cells of Tables B.3/B.5/B.7 (no moment arm about that joint) are scored only where ours is not zero.
-- Appendix A (Fig. A.4) prints no numbers, only the radar plot.
+- the inputs above;
+- blank cells of Tables B.3/B.5/B.7 (no moment arm about that joint) are scored only where ours is not zero;
+- Appendix A (Fig. A.4) prints no numbers, only the radar plot;
 - Chapter 4 claims that this configuration cannot evaluate (variants not computed) are counted in the summary as
   ``not_evaluated``, not scored.
 """
@@ -37,6 +55,7 @@ from __future__ import annotations
 
 import math
 import re
+import zlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterable, Mapping, Sequence
@@ -59,8 +78,25 @@ VERDICTS = (MATCHES, SAME_CONCLUSION, DIFFERS)
 NOT_EVALUATED = "not evaluated"
 
 
-COLUMNS = ["chapter", "source", "item", "thesis", "ours", "difference", "verdict", "tolerance", "conclusion",
-           "reason", "file"]
+INDEPENDENT = "independent"
+
+
+CALIBRATED = "calibrated"
+
+
+KINDS = (INDEPENDENT, CALIBRATED)
+
+
+COLUMNS = ["chapter", "source", "item", "kind", "thesis", "ours", "difference", "verdict", "tolerance", "conclusion",
+           "test", "chance_rate", "reason", "basis", "file"]
+
+
+# print units (one unit of the last printed digit) of the Appendix B tables, for residuals in print units
+PRINT_UNIT = {"strength_N": 0.1, "moment_arm_m": 1e-4}
+
+
+# permutations per conclusion test for its chance rate (seeded from config 'seed')
+N_PERMUTATIONS = 2000
 
 
 CHAPTER_ORDER = ["Appendix B", "Chapter 3", "Chapter 4", "Chapter 5", "Chapter 6"]
@@ -108,9 +144,17 @@ TOLERANCES: dict[str, Tolerance] = {
     "D_fc_abs": Tolerance(
         0.01, "abs", "",
         "D(f_c) is printed to 2 decimals; one unit of the last printed digit."),
+    "D_fc_band": Tolerance(
+        0.10, "threshold", "",
+        "Conclusion threshold for D(f_c): the same fit quality when |d| <= 0.1 (a tenth of the score's range), or "
+        "both at or above the convergence threshold eps_D (both converged). 'Same side of eps_D' alone is not a "
+        "conclusion (0.23 and 0.69 are on the same side)."),
     "iters_rel": Tolerance(
         0.20, "rel", "",
-        "Iteration counts of a random run: 20 % of the printed count (at least 1 iteration)."),
+        "Iteration counts of a random run: 20 % of the printed count (at least 1 iteration) when both runs "
+        "converged. A censored count ('30+': stopped at maxIter without converging) is compared as censored: it "
+        "matches only a run of ours that also stopped at that cap without converging; a converged run never "
+        "matches a censored one."),
     "identified_sigma": Tolerance(
         0.10, "threshold", "",
         "Conclusion threshold: a group counts as 'identified' when its relative spread sigma_c (or sqrt(v_c)/f_c) "
@@ -136,6 +180,13 @@ TOLERANCES: dict[str, Tolerance] = {
         2.0, "sampling", "",
         "Table 3.2 cells (mean and SD over n = 5 participants per group): matches within 2 standard errors of "
         "the printed value, SE = SD/sqrt(n) for a mean and SD/sqrt(2(n-1)) for an SD (the printed SD is used)."),
+    # ---- conclusion tests
+    "conclusion_chance_max": Tolerance(
+        0.20, "threshold", "",
+        "A conclusion test is used only if its agreement by chance is at most 20 %: the share of items on which "
+        "it agrees when our compared values are permuted at random within the test's strata (mean over "
+        f"{N_PERMUTATIONS} seeded permutations). A test that agrees by chance more often than one time in five "
+        "cannot tell a reproduced conclusion from a coin flip; its rows can then only match or differ."),
     # ---- Chapter 4: qualitative claims
     "claim": Tolerance(
         0.0, "statement", "",
@@ -170,12 +221,6 @@ def tolerances(overrides: Mapping[str, float] | None = None) -> dict[str, Tolera
     return out
 
 
-def tolerance_table(tols: Mapping[str, Tolerance] | None = None) -> pd.DataFrame:
-    tols = tols or TOLERANCES
-    return pd.DataFrame([{"key": k, "value": t.value, "kind": t.kind, "unit": t.unit, "overridden": t.overridden,
-                          "why": t.why} for k, t in tols.items()])
-
-
 def _num(x) -> float:
     try:
         v = float(x)
@@ -195,15 +240,162 @@ def _tol_text(t: Tolerance, text: str) -> str:
     return text + (" (config override)" if t.overridden else "")
 
 
-def _row(chapter, source, item, thesis, ours, difference, verdict, tolerance, conclusion, reason, file) -> dict:
-    return dict(zip(COLUMNS, (chapter, source, item, thesis, ours, difference, verdict, tolerance, conclusion,
-                              reason, str(file))))
+# --------------------------------------------------------------------------- conclusion tests
+
+def _ranks(x: np.ndarray, strata: np.ndarray) -> np.ndarray:
+    """Rank (1 = largest, ties share the lowest rank) of ``x`` within each stratum; NaN stays NaN."""
+    x = np.asarray(x, float)
+    same = np.asarray(strata)[:, None] == np.asarray(strata)[None, :]
+    r = 1.0 + ((x[None, :] > x[:, None]) & same).sum(axis=1)
+    return np.where(np.isnan(x), np.nan, r)
 
 
-def _verdict(within: bool, same_conclusion: bool | None) -> str:
-    if within:
-        return MATCHES
-    return SAME_CONCLUSION if same_conclusion else DIFFERS
+def _agree_rank(t, o, aux, strata):
+    rt, ro = _ranks(t, strata), _ranks(o, strata)
+    return ~np.isnan(ro) & (rt == ro)
+
+
+def _sign_arr(x, zero):
+    return np.where(np.abs(x) <= zero, 0, np.sign(x))
+
+
+def _agree_sign(t, o, aux, strata):
+    return ~np.isnan(o) & (_sign_arr(t, aux[:, 0]) == _sign_arr(o, aux[:, 0]))
+
+
+def _agree_equal(t, o, aux, strata):
+    return ~np.isnan(o) & (t == o)
+
+
+def _icc_code(x):
+    return np.select([x > 0.9, x > 0.75, x > 0.5], [3, 2, 1], 0).astype(float)
+
+
+def _agree_icc(t, o, aux, strata):
+    return ~np.isnan(o) & (_icc_code(t) == _icc_code(o))
+
+
+def _recovery_code(x, f_true, rel):
+    return np.where(np.abs(x - f_true) <= rel * f_true, 0, np.sign(x - f_true))
+
+
+def _agree_recovery(t, o, aux, strata):
+    return ~np.isnan(o) & (_recovery_code(t, aux[:, 0], aux[:, 1]) == _recovery_code(o, aux[:, 0], aux[:, 1]))
+
+
+def _agree_identified(t, o, aux, strata):
+    return ~np.isnan(t) & ~np.isnan(o) & ((t < aux[:, 0]) == (o < aux[:, 0]))
+
+
+def _agree_d_band(t, o, aux, strata):
+    band, eps = aux[:, 0], aux[:, 1]
+    return ~np.isnan(o) & ((np.abs(t - o) <= band) | ((t >= eps) & (o >= eps)))
+
+
+@dataclass(frozen=True)
+class ConclusionTest:
+    """A conclusion test: ``agree(thesis, ours, aux, strata)`` -> bool per item (vectorised over the test's items;
+    ``aux`` holds per-item parameters, two columns). Its chance rate permutes ``ours`` within ``strata``."""
+
+    key: str
+    tolerance: str
+    describes: str
+    agree: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+CONCLUSION_TESTS: dict[str, ConclusionTest] = {t.key: t for t in (
+    ConclusionTest("group_strength_rank", "b_strength_N",
+                   "same rank of the group strength among the groups of its table", _agree_rank),
+    ConclusionTest("moment_arm_sign", "b_moment_arm_m",
+                   "same sign of the moment arm (role about the joint), per table", _agree_sign),
+    ConclusionTest("loa_sign", "ci_print_half_unit", "same sign of a limit of agreement", _agree_sign),
+    ConclusionTest("icc_class", "ci_print_half_unit", "same reliability class (Koo & Li 2016)", _agree_icc),
+    ConclusionTest("f_significance", "f_rel", "same significance of an F test at alpha", _agree_equal),
+    ConclusionTest("pairwise_significance", "p_print",
+                   "same significance and direction of a pairwise comparison", _agree_equal),
+    ConclusionTest("table_3_2_rank", "sampling_z",
+                   "same rank of a group among the 3 groups at one level x quartile (mean or SD)", _agree_rank),
+    ConclusionTest("recovers_f_a", "estimate_rel",
+                   "simulated data set: same recovery class of f_a (within 10 %, above, below)", _agree_recovery),
+    ConclusionTest("relative_strength_rank", "estimate_rel",
+                   "participant: same rank of f_c / f_base among the data set's groups (f_base: the printed "
+                   "baseline group strength of Table B.3/B.5/B.7)", _agree_rank),
+    ConclusionTest("identification", "identified_sigma",
+                   "same identification class (relative spread below 0.1 or not)", _agree_identified),
+    ConclusionTest("D_fc_same_fit", "D_fc_band", "D(f_c) within 0.1, or both converged (>= eps_D)", _agree_d_band),
+    ConclusionTest("convergence", "iters_rel", "same convergence (converged within maxIter or not)", _agree_equal),
+)}
+
+
+def _permute_within(o: np.ndarray, groups: Sequence[np.ndarray], rng: np.random.Generator) -> np.ndarray:
+    out = o.copy()
+    for idx in groups:
+        out[idx] = o[rng.permutation(idx)]
+    return out
+
+
+def chance_rates(rows: pd.DataFrame, seed: int = 0, n_permutations: int = N_PERMUTATIONS) -> pd.DataFrame:
+    """Per conclusion test: items, observed agreement, and agreement by chance (mean share of agreeing items when our
+    compared values are permuted within the test's strata; ``n_permutations`` seeded permutations)."""
+    out = []
+    for key, test in CONCLUSION_TESTS.items():
+        sub = rows[rows["_test"] == key] if "_test" in rows else rows.iloc[:0]
+        if not len(sub):
+            out.append({"test": key, "items": 0, "agreement": math.nan, "chance_rate": math.nan})
+            continue
+        t = sub["_tv"].to_numpy(float)
+        o = sub["_ov"].to_numpy(float)
+        aux = sub[["_aux0", "_aux1"]].to_numpy(float)
+        strata = pd.factorize(sub["_stratum"].astype(str))[0]
+        groups = [np.flatnonzero(strata == k) for k in np.unique(strata)]
+        observed = float(test.agree(t, o, aux, strata).mean())
+        rng = np.random.default_rng([int(seed), zlib.crc32(key.encode())])
+        acc = 0.0
+        for _ in range(n_permutations):
+            acc += float(test.agree(t, _permute_within(o, groups, rng), aux, strata).mean())
+        out.append({"test": key, "items": len(sub), "agreement": observed, "chance_rate": acc / n_permutations})
+    return pd.DataFrame(out)
+
+
+def tolerance_table(tols: Mapping[str, Tolerance] | None = None, chance: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Every tolerance with its reasoning, then every conclusion test beside its tolerance with its chance rate
+    (``chance``: :func:`chance_rates` of the run; blank without it)."""
+    tols = tols or TOLERANCES
+    rows = [{"key": k, "kind": t.kind, "value": t.value, "unit": t.unit, "overridden": t.overridden,
+             "beside": "", "items": math.nan, "chance_rate": math.nan, "used": "", "why": t.why}
+            for k, t in tols.items()]
+    cmax = tols["conclusion_chance_max"].value
+    ch = chance.set_index("test") if chance is not None and len(chance) else None
+    for key, test in CONCLUSION_TESTS.items():
+        n = int(ch.loc[key, "items"]) if ch is not None and key in ch.index else 0
+        c = float(ch.loc[key, "chance_rate"]) if n else math.nan
+        used = ("not scored in this run" if not n else
+                ("yes" if c <= cmax else f"no: chance rate above {cmax:g}"))
+        rows.append({"key": key, "kind": "conclusion test", "value": math.nan, "unit": "", "overridden": False,
+                     "beside": test.tolerance, "items": n, "chance_rate": round(c, 3) if n else math.nan,
+                     "used": used, "why": test.describes})
+    return pd.DataFrame(rows)
+
+
+def _row(chapter, source, item, thesis, ours, difference, within, tolerance, conclusion, reason_codes, file, *,
+         kind=INDEPENDENT, basis="", test="", tv=math.nan, ov=math.nan, aux=(math.nan, math.nan), stratum="",
+         always=()) -> dict:
+    """A scorecard row before its verdict: ``within`` the tolerance or not, and its conclusion test (``test`` key,
+    thesis-side ``tv`` and our ``ov`` values, per-item ``aux`` parameters, permutation ``stratum``)."""
+    if test and test not in CONCLUSION_TESTS:
+        raise KeyError(f"unknown conclusion test {test!r}")
+    return {"chapter": chapter, "source": source, "item": item, "kind": kind, "thesis": thesis, "ours": ours,
+            "difference": difference, "verdict": "", "tolerance": tolerance, "conclusion": conclusion, "test": test,
+            "chance_rate": math.nan, "reason": "", "basis": basis, "file": str(file),
+            "_within": bool(within), "_codes": tuple(reason_codes), "_always": tuple(always), "_test": test,
+            "_tv": _num(tv), "_ov": _num(ov), "_aux0": _num(aux[0]), "_aux1": _num(aux[1]),
+            "_stratum": f"{file}|{stratum}"}
+
+
+def _not_evaluated(chapter, source, item, conclusion, file) -> dict:
+    r = _row(chapter, source, item, "holds", NOT_EVALUATED, math.nan, False, "", conclusion, (), file)
+    r["verdict"] = NOT_EVALUATED
+    return r
 
 
 def _reason(verdict: str, codes: Sequence[str], always: Sequence[str] = ()) -> str:
@@ -230,6 +422,89 @@ class Context:
 
 
 B_TABLES = {"s3m24": "Table B.3", "p3m12": "Table B.5", "p2m7": "Table B.7"}
+B_FILES = {"s3m24": "table_B3_params_s3m24.csv", "p3m12": "table_B5_params_p3m12.csv",
+           "p2m7": "table_B7_params_p2m7.csv"}
+GROUPING_FILES = {"s3m24": "table_B2_groups_s3m24.csv", "p3m12": "table_B4_groups_p3m12.csv",
+                  "p2m7": "table_B6_groups_p2m7.csv"}
+
+
+def _key(name: str) -> str:
+    return re.sub(r"\s+", " ", str(name).strip().lower())
+
+
+def recovered_strengths(config: Mapping) -> dict[str, dict]:
+    """Muscles whose strength was recovered from Table B.3 in this configuration (name -> record of
+    ``b3_implied_strengths.csv``); empty with ``model.unprinted_strengths: osim``."""
+    m = config.get("model", {})
+    if m.get("unprinted_strengths", "b3_implied") != "b3_implied":
+        return {}
+    path = Path(config.get("data", {}).get("model_dir", "data/model")) / "b3_implied_strengths.csv"
+    if not path.exists():
+        return {}
+    df = _read(path)
+    return {_key(r["name"]): r for r in df.to_dict("records")}
+
+
+def supplemented_groups(config: Mapping, model: str) -> dict[str, str]:
+    """Groups of ``model`` whose membership an applied supplement with basis 'fit' changes (a row of
+    ``grouping_supplements.csv`` that exists only to reproduce a printed value; applied with
+    ``model.grouping_supplements: all``): group (as named in the printed grouping table) -> the supplements.
+    Supplements justified by the printed tables or by anatomy (basis 'printed' / 'anatomy') calibrate nothing."""
+    from neckstrength.model.reduction import supplement_level
+
+    level = supplement_level(config.get("model", {}).get("grouping_supplements", True))
+    if level != "all":
+        return {}
+    thesis_dir = Path(config.get("data", {}).get("thesis_dir", "data/thesis"))
+    path = thesis_dir / "grouping_supplements.csv"
+    if not path.exists():
+        return {}
+    sup = _read(path)
+    sup = sup[(sup["model"] == model) & (sup["basis"] == "fit")] if "basis" in sup else sup.iloc[:0]
+    printed = {}
+    if (thesis_dir / GROUPING_FILES.get(model, "-")).exists():
+        g = _read(thesis_dir / GROUPING_FILES[model])
+        printed = {_key(r["muscle"]): str(r["group"]) for r in g.to_dict("records")}
+    out: dict[str, list[str]] = {}
+    for r in sup.to_dict("records"):
+        grp = r["group"] if r["action"] == "add" and isinstance(r["group"], str) else printed.get(_key(r["muscle"]))
+        if grp:
+            out.setdefault(grp, []).append(f"{r['action']} {r['muscle']}")
+    return {g: ", ".join(v) for g, v in out.items()}
+
+
+def _group_calibration(ctx: Context, model: str, groups: pd.DataFrame | None) -> dict[str, tuple[int, str]]:
+    """Per group of a named model: (number of its items that are calibrated, why); -1 = all of them."""
+    rec = recovered_strengths(ctx.config)
+    sup = supplemented_groups(ctx.config, model)
+    out = {}
+    if groups is None:
+        if rec or sup:
+            raise FileNotFoundError(f"{ctx.rel}: groups.csv beside it is needed to tell calibrated from independent "
+                                    "items (recovered strengths / supplements are in use)")
+        return out
+    for r in groups.to_dict("records"):
+        g = str(r["group"])
+        members = [m.strip() for m in str(r.get("members", "")).split(";") if m.strip()]
+        recm = [m for m in members if _key(m) in rec]
+        base = re.sub(r"-[RL]$", "", g)
+        why = []
+        if recm:
+            why.append(f"{len(recm)} of its {len(members)} member strengths recovered from Table B.3 "
+                       f"({', '.join(recm)})")
+        if base in sup or g in sup:
+            why.append(f"membership edited by grouping_supplements.csv only to reproduce the printed table "
+                       f"(basis 'fit': {sup.get(base, sup.get(g))})")
+        if not why:
+            continue
+        if model == "s3m24" and recm and not (base in sup or g in sup):
+            # Table B.3 is what the strengths were solved from: as many items as unknowns are calibrated
+            out[g] = (len(recm), "; ".join(why))
+        else:
+            out[g] = (-1, "; ".join(why) + (
+                "; Table B.3 fixes the recovered strengths, so this table's numbers follow from the same printed "
+                "values" if recm else ""))
+    return out
 
 
 def score_b_params(ctx: Context) -> list[dict]:
@@ -238,13 +513,13 @@ def score_b_params(ctx: Context) -> list[dict]:
     df = _read(ctx.path)
     groups_csv = ctx.path.parent / "groups.csv"
     n_members = {}
+    groups = None
     if groups_csv.exists():
-        g = _read(groups_csv)
-        n_members = dict(zip(g["group"], g["n_members"]))
+        groups = _read(groups_csv)
+        n_members = dict(zip(groups["group"], groups["n_members"]))
+    calib = _group_calibration(ctx, model, groups)
     ts, ta = ctx.tols["b_strength_N"], ctx.tols["b_moment_arm_m"]
     st = df[df["quantity"] == "strength_N"]
-    rank_t = st.set_index("group")["thesis"].rank(ascending=False, method="min")
-    rank_o = st.set_index("group")["ours"].rank(ascending=False, method="min")
     reasons = ("print", "inputs")
     rows = []
     for r in df.to_dict("records"):
@@ -252,29 +527,51 @@ def score_b_params(ctx: Context) -> list[dict]:
         t, o = _num(r["thesis"]), _num(r["ours"])
         n = int(n_members.get(g, 1))
         blank = isinstance(r.get("note"), str) and "blank" in r["note"]
+        d = o - t
         if q == "strength_N":
             tol = ts.value * (1 + math.sqrt(n))
             tol_txt = _tol_text(ts, f"|d| <= {ts.value:g}*(1+sqrt({n})) = {tol:.3g} N (print + input rounding)")
-            same = (not math.isnan(o)) and rank_t.get(g) == rank_o.get(g)
-            concl = (f"same rank among the {len(st)} group strengths: thesis #{int(rank_t.get(g, 0))}, "
-                     f"ours #{int(rank_o[g]) if g in rank_o and not math.isnan(rank_o[g]) else '-'}")
+            concl = f"same rank among the {len(st)} group strengths"
             item = f"{g} strength (N)"
+            test, aux, unit = "group_strength_rank", (math.nan, math.nan), PRINT_UNIT["strength_N"]
         else:
             tol = ta.value * (1 + math.sqrt(n))
             if blank and abs(o) <= tol:
                 continue  # blank printed cell (no arm about this joint) and ours zero: nothing printed to score
             tol_txt = _tol_text(ta, f"|d| <= {ta.value:g}*(1+sqrt({n})) = {tol:.2g} m (print + input rounding)")
-            st_, so = _sign(t, tol), _sign(o, tol) if not math.isnan(o) else None
-            same = so is not None and st_ == so
-            concl = (f"same sign of the moment arm (role about the joint): thesis {st_:+d}, ours "
-                     f"{'-' if so is None else f'{so:+d}'}")
+            concl = f"same sign of the moment arm: thesis {_sign(t, tol):+d}, ours " + (
+                "-" if math.isnan(o) else f"{_sign(o, tol):+d}")
             item = f"{g} {q.replace(' (m)', '').replace('_', ' ')} moment arm (m)"
-        d = o - t
+            test, aux, unit = "moment_arm_sign", (tol, math.nan), PRINT_UNIT["moment_arm_m"]
         within = not math.isnan(d) and abs(d) <= tol * (1 + 1e-9)
-        v = _verdict(within, same)
-        rows.append(_row("Appendix B", src, item + (" [blank in thesis]" if blank else ""),
-                         "" if blank else _fmt(t), _fmt(o), d, v, tol_txt, concl,
-                         _reason(v, reasons), ctx.rel))
+        resid = abs(d) / unit if not math.isnan(d) else math.nan
+        row = _row("Appendix B", src, item + (" [blank in thesis]" if blank else ""), "" if blank else _fmt(t),
+                   _fmt(o), d, within, tol_txt, concl, reasons, ctx.rel, test=test, tv=0.0 if blank else t, ov=o,
+                   aux=aux, stratum="", basis=f"group strengths from Table B.1 as printed; moment arms derived "
+                                             f"from the public OpenSim model; residual {resid:.2f} print units")
+        row["_group"], row["_resid"], row["_q"] = g, resid, q
+        rows.append(row)
+    # degrees of freedom: per calibrated group, its strength and the (k - 1) best-fitting moment arms are calibrated
+    for g, (k, why) in calib.items():
+        mine = [r for r in rows if r["_group"] == g]
+        if k < 0:
+            chosen = mine
+        else:
+            st_rows = [r for r in mine if r["_q"] == "strength_N"]
+            arms = sorted([r for r in mine if r["_q"] != "strength_N"], key=lambda r: r["_resid"])
+            chosen = (st_rows + arms)[:k]
+        for r in mine:
+            if r in chosen:
+                r["kind"] = CALIBRATED
+                r["basis"] = (why + (f"; one of the {k} items counted for the {k} strengths solved from this group "
+                                     f"(residual {r['_resid']:.2f} print units)" if k > 0 else
+                                     f"; residual {r['_resid']:.2f} print units"))
+            else:
+                r["basis"] = (why + f"; over-determined: {len(mine) - k} printed numbers beyond the {k} solved "
+                                    f"for; residual {r['_resid']:.2f} print units")
+    for r in rows:
+        for k in ("_group", "_resid", "_q"):
+            r.pop(k, None)
     return rows
 
 
@@ -288,10 +585,12 @@ def score_b1(ctx: Context) -> list[dict]:
         d = o - th
         within = abs(d) <= t.value * (1 + 1e-6)
         st_, so = _sign(th, t.value), _sign(o, t.value)
-        v = _verdict(within, st_ == so)
         rows.append(_row("Appendix B", "Table B.1", f"row {r['index']} {r['name']}: {r['joint']} {r['axis']} moment "
-                         "arm (m)", _fmt(th), _fmt(o), d, v, _tol_text(t, f"|d| <= {t.value:g} m (print rounding)"),
-                         f"same sign: thesis {st_:+d}, ours {so:+d}", _reason(v, ("print",)), ctx.rel))
+                         "arm (m)", _fmt(th), _fmt(o), d, within,
+                         _tol_text(t, f"|d| <= {t.value:g} m (print rounding)"),
+                         f"same sign: thesis {st_:+d}, ours {so:+d}", ("print",), ctx.rel,
+                         basis="derived from the public OpenSim model geometry; nothing fitted to Table B.1",
+                         test="moment_arm_sign", tv=th, ov=o, aux=(t.value, math.nan), stratum="B.1"))
     return rows
 
 
@@ -309,6 +608,14 @@ def _icc_class(x: float) -> str:
 
 def _ch3_caveats(ctx: Context) -> tuple[str, ...]:
     return ("synthetic",) if ctx.match["dataset"] == "SYNTHETIC" else ()
+
+
+def _ch3_kind(ctx: Context) -> tuple[str, str]:
+    if ctx.match["dataset"] == "SYNTHETIC":
+        return CALIBRATED, ("SYNTHETIC cohort drawn to the printed Table 3.2 means/SDs and limits of agreement "
+                            "(the thesis's participant data were never published): agreement shows the "
+                            "calibration and the internal consistency of the printed statistics, not a replication")
+    return INDEPENDENT, "measured cohort from config chapter3.data"
 
 
 def _parse_p(text: str):
@@ -329,16 +636,10 @@ def score_ch3_statistics(ctx: Context) -> list[dict]:
     alpha = float(ctx.config.get("chapter3", {}).get("mixed_model", {}).get("alpha", 0.05))
     synth = _ch3_caveats(ctx)
     cal = ("calibrated",) if synth else ()
+    kind, basis = _ch3_kind(ctx)
     src = "Sec. 3.4"
     half = ctx.tols["ci_print_half_unit"]
-    loa = df[df["kind"] == "loa"].set_index("id")
-
-    def width(prefix, col):
-        try:
-            return float(loa.loc[f"loa_{prefix}_upper", col]) - float(loa.loc[f"loa_{prefix}_lower", col])
-        except KeyError:
-            return math.nan
-
+    kw = dict(kind=kind, basis=basis)
     rows = []
     for r in df.to_dict("records"):
         k = r["kind"]
@@ -346,36 +647,32 @@ def score_ch3_statistics(ctx: Context) -> list[dict]:
         if k == "loa":
             lo, hi = _num(r["ours_ci_low"]), _num(r["ours_ci_high"])
             within = not math.isnan(o) and lo - half.value <= th <= hi + half.value
-            w_t = width("intra", "thesis_value") < width("inter", "thesis_value")
-            w_o = width("intra", "ours_value") < width("inter", "ours_value")
-            same = not math.isnan(o) and _sign(th, 0) == _sign(o, 0) and w_t == w_o
-            v = _verdict(within, same)
             rows.append(_row("Chapter 3", src, r["statistic"], _fmt(th), f"{_fmt(o, 3)} (95% CI {_fmt(lo, 3)}, "
-                             f"{_fmt(hi, 3)})", o - th, v,
+                             f"{_fmt(hi, 3)})", o - th, within,
                              _tol_text(half, f"printed limit inside our 95% CI +- {half.value:g}"),
-                             f"same sign and intra narrower than inter: thesis {w_t}, ours {w_o}",
-                             _reason(v, ("random",), synth + cal), ctx.rel))
+                             f"same sign: thesis {_sign(th, 0):+d}, ours {_sign(o, 0) if not math.isnan(o) else 0:+d}",
+                             ("random",), ctx.rel, always=synth + cal, test="loa_sign", tv=th, ov=o,
+                             aux=(0.0, math.nan), **kw))
         elif k == "icc":
             lo, hi = _num(r["thesis_ci_low"]), _num(r["thesis_ci_high"])
             within = not math.isnan(o) and lo - half.value <= o <= hi + half.value
             ct, co = _icc_class(th), (_icc_class(o) if not math.isnan(o) else "-")
-            v = _verdict(within, ct == co)
             rows.append(_row("Chapter 3", src, r["statistic"], f"{_fmt(th)} (95% CI {_fmt(lo)}, {_fmt(hi)})",
                              f"{_fmt(o, 3)} (95% CI {_fmt(r['ours_ci_low'], 3)}, {_fmt(r['ours_ci_high'], 3)})",
-                             o - th, v, _tol_text(half, f"ours inside the printed 95% CI +- {half.value:g}"),
+                             o - th, within, _tol_text(half, f"ours inside the printed 95% CI +- {half.value:g}"),
                              f"same reliability class (Koo & Li 2016): thesis {ct}, ours {co}",
-                             _reason(v, ("random",), synth), ctx.rel))
+                             ("random",), ctx.rel, always=synth, test="icc_class", tv=th, ov=o, **kw))
         elif k == "f_test":
             t = ctx.tols["f_rel"]
             within = not math.isnan(o) and abs(o - th) <= t.value * abs(th)
-            sig_t, sig_o = r["thesis_significant"], r["ours_significant"]
-            same = str(sig_t) == str(sig_o) and str(sig_o) in ("True", "False")
-            v = _verdict(within, same)
+            sig_t, sig_o = str(r["thesis_significant"]), str(r["ours_significant"])
+            code = {"True": 1.0, "False": 0.0}
             rows.append(_row("Chapter 3", src, r["statistic"], f"F[{r['thesis_df']}] = {_fmt(th)}, {r['thesis_p']}",
-                             f"F_wald[{r['ours_df']}] = {_fmt(o, 3)}, p = {_fmt(r['ours_p'], 2)}", o - th, v,
+                             f"F_wald[{r['ours_df']}] = {_fmt(o, 3)}, p = {_fmt(r['ours_p'], 2)}", o - th, within,
                              _tol_text(t, f"|d| <= {t.value:g} x F"),
                              f"same significance at alpha = {alpha:g}: thesis {sig_t}, ours {sig_o}",
-                             _reason(v, ("random", "satterthwaite"), synth), ctx.rel))
+                             ("random", "satterthwaite"), ctx.rel, always=synth, test="f_significance",
+                             tv=code.get(sig_t, math.nan), ov=code.get(sig_o, math.nan), **kw))
         elif k == "pairwise":
             op, p, h = _parse_p(r["thesis_p"])
             p_o = _num(r["ours_p"])
@@ -393,15 +690,17 @@ def score_ch3_statistics(ctx: Context) -> list[dict]:
             sig_t = op != "ns" and (op == "<" or p <= alpha)
             sig_o = p_o <= alpha
             within = holds and (dir_ok or op == "ns")
-            same = sig_t == sig_o and (dir_ok or not sig_t)
-            v = _verdict(within, same)
+            # signed significance: +-1 significant in that direction, 0 not significant
+            code_t = float(want if want else 1) if sig_t else 0.0
+            code_o = float(_sign(o, 0) if not math.isnan(o) else 0) if sig_o else 0.0
             rows.append(_row("Chapter 3", src, r["statistic"], f"{r['thesis_p']}" + (
                 f" ({'higher' if want > 0 else 'lower'})" if want and op != "ns" else ""),
-                f"p = {_fmt(p_o, 2)} (difference {o:+.3f})", math.nan, v, _tol_text(ctx.tols["p_print"],
+                f"p = {_fmt(p_o, 2)} (difference {o:+.3f})", math.nan, within, _tol_text(ctx.tols["p_print"],
                 "printed p statement holds, same direction"),
                 f"same significance at alpha = {alpha:g} and direction: thesis {sig_t}, ours {sig_o}"
                 + ("" if dir_ok else " (direction reversed)"),
-                _reason(v, ("random", "satterthwaite"), synth), ctx.rel))
+                ("random", "satterthwaite"), ctx.rel, always=synth, test="pairwise_significance", tv=code_t,
+                ov=code_o, **kw))
     return rows
 
 
@@ -411,24 +710,21 @@ def score_table_3_2(ctx: Context) -> list[dict]:
     t = ctx.tols["sampling_z"]
     synth = _ch3_caveats(ctx)
     cal = ("calibrated",) if synth else ()
+    kind, basis = _ch3_kind(ctx)
     rows = []
     for stat in ("mean", "sd"):
-        rk_t = df.groupby(["level", "quartile"])[f"thesis_{stat}"].rank(method="min")
-        rk_o = df.groupby(["level", "quartile"])[f"mfi_{stat}"].rank(method="min")
         for i, r in df.iterrows():
             n = int(r["n"])
             sd = float(r["thesis_sd"])
             se = sd / math.sqrt(n) if stat == "mean" else sd / math.sqrt(2 * (n - 1))
             th, o = float(r[f"thesis_{stat}"]), float(r[f"mfi_{stat}"])
             within = abs(o - th) <= t.value * se
-            same = rk_t[i] == rk_o[i]
-            v = _verdict(within, same)
             rows.append(_row("Chapter 3", "Table 3.2", f"{r['level']} {r['quartile']} {r['group']} MFI {stat}",
-                             _fmt(th), _fmt(o, 3), o - th, v,
+                             _fmt(th), _fmt(o, 3), o - th, within,
                              _tol_text(t, f"|d| <= {t.value:g} SE = {t.value * se:.3g} (n = {n})"),
-                             f"same rank of {r['group']} among the 3 groups at {r['level']} {r['quartile']}: "
-                             f"thesis {int(rk_t[i])}, ours {int(rk_o[i])} (1 = lowest)",
-                             _reason(v, ("random",), synth + cal), ctx.rel))
+                             f"same rank of {r['group']} among the 3 groups at {r['level']} {r['quartile']}",
+                             ("random",), ctx.rel, always=synth + cal, kind=kind, basis=basis,
+                             test="table_3_2_rank", tv=th, ov=o, stratum=f"{stat}|{r['level']}|{r['quartile']}"))
     return rows
 
 
@@ -440,21 +736,20 @@ def score_ch4_claims(ctx: Context) -> list[dict]:
     for r in df.to_dict("records"):
         verdict = str(r["verdict"])
         if verdict not in ("holds", "does not hold"):
-            rows.append(_row("Chapter 4", f"Sec. {r['section']}", r["claim"], "holds", verdict, math.nan,
-                             NOT_EVALUATED, "", str(r["numbers"]), "", ctx.rel))
+            rows.append(_not_evaluated("Chapter 4", f"Sec. {r['section']}", r["claim"], str(r["numbers"]), ctx.rel))
             continue
-        v = MATCHES if verdict == "holds" else DIFFERS
         rows.append(_row("Chapter 4", f"Sec. {r['section']}", f"{r['claim']} [{r['variants']}]", "holds", verdict,
-                         math.nan, v, _tol_text(t, f"claim check (relative tolerance "
-                                                   f"{c4.get('claim_tolerance_rel', '')}, anterior |azimuth| < "
-                                                   f"{c4.get('anterior_max_azimuth_deg', '')} deg)"),
-                         str(r["numbers"]), _reason(v, ("geometry", "grouping") if "sagittal" in str(r["variants"])
-                                                    else ("geometry",)), ctx.rel))
+                         math.nan, verdict == "holds",
+                         _tol_text(t, f"claim check (relative tolerance {c4.get('claim_tolerance_rel', '')}, anterior "
+                                      f"|azimuth| < {c4.get('anterior_max_azimuth_deg', '')} deg)"),
+                         str(r["numbers"]), ("geometry", "grouping") if "sagittal" in str(r["variants"])
+                         else ("geometry",), ctx.rel,
+                         basis="computed on the model's strength surfaces; nothing fitted to the claim"))
     return rows
 
 
 def _baseline(df: pd.DataFrame, ctx: Context, model: str | None, thesis_table: str | None) -> dict:
-    """Baseline group strengths f_base as printed (f_a of the unweakened simulated set: 'norm' or 'Sim')."""
+    """Printed f_a of the unweakened simulated set ('norm' or 'Sim'), for the Table 5.1 caption claim."""
     fa = df[df["quantity"] == "f_a"]
     for ds in ("norm", "Sim"):
         sub = fa[fa["dataset"] == ds]
@@ -466,8 +761,40 @@ def _baseline(df: pd.DataFrame, ctx: Context, model: str | None, thesis_table: s
         t = thesis_result_table(ctx.config["data"]["thesis_dir"], model or "p2m7", thesis_table)
         t = t[(t["quantity"] == "f_a") & t["dataset"].isin(["norm", "Sim"])]
         return dict(zip(t["group"], t["value_numeric"].astype(float)))
-    except Exception:  # noqa: BLE001 - no baseline: participant conclusions are then not available
+    except Exception:  # noqa: BLE001 - no baseline: the caption claim is then not available
         return {}
+
+
+def _printed_group_strengths(ctx: Context, model: str | None) -> dict:
+    """f_base: the printed baseline group strengths of the model (Table B.3/B.5/B.7; spatial groups by their right
+    side), the baseline the thesis bootstraps its prior from (Sec. 5.2.2.1, 6.2)."""
+    if model not in B_FILES:
+        return {}
+    path = Path(ctx.config.get("data", {}).get("thesis_dir", "data/thesis")) / B_FILES[model]
+    if not path.exists():
+        return {}
+    t = _read(path)
+    out = {}
+    for r in t.to_dict("records"):
+        g = str(r["group"])
+        if g.endswith("-L"):
+            continue
+        out[re.sub(r"-R$", "", g)] = _num(r["strength_N"])
+    return out
+
+
+def _spearman_perm(a: np.ndarray, b: np.ndarray, seed: int, n: int = N_PERMUTATIONS) -> tuple[float, float]:
+    """Spearman rank correlation and its one-sided permutation p-value (share of permutations at least as high)."""
+    from scipy.stats import rankdata
+
+    ok = ~np.isnan(a) & ~np.isnan(b)
+    a, b = rankdata(a[ok]), rankdata(b[ok])
+    if len(a) < 3:
+        return math.nan, math.nan
+    rho = float(np.corrcoef(a, b)[0, 1])
+    rng = np.random.default_rng(seed)
+    hits = sum(float(np.corrcoef(a, rng.permutation(b))[0, 1]) >= rho - 1e-12 for _ in range(n))
+    return rho, (hits + 1) / (n + 1)
 
 
 def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
@@ -482,24 +809,26 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
     for c in ("dataset", "quantity", "muscle"):
         if c not in df.columns:
             df[c] = ""
-    df["muscle"] = df["muscle"].fillna("")
+    df["muscle"] = df["muscle"].astype(object).fillna("")
     df["_t"] = pd.to_numeric(df[thesis_col], errors="coerce")
     df["_o"] = pd.to_numeric(df[ours_col], errors="coerce")
     df = df[df["_t"].notna()].copy()  # only cells the thesis prints (e.g. Table 6.1 has no 'norm'/'weak' rows)
-    base = _baseline(df.rename(columns={thesis_col: "thesis"}), ctx, model, thesis_table)
+    f_base = _printed_group_strengths(ctx, model)
     simulated = set(df.loc[df["quantity"] == "f_a", "dataset"])
     fa = {(r["dataset"], r["muscle"]): r["_t"] for r in df[df["quantity"] == "f_a"].to_dict("records")}
     fc = {(r["dataset"], r["muscle"]): (r["_t"], r["_o"]) for r in df[df["quantity"] == "f_c"].to_dict("records")}
+    seed = int(ctx.config.get("seed", 0) or 0)
+    rank_text: dict = {}
 
-    def rel_weak(ds):  # participant: f_c / f_base relative to the data set's median ratio (scale-free)
-        out = {}
-        for side in (0, 1):
-            ratios = {m: v[side] / base[m] for (d, m), v in fc.items() if d == ds and m in base and base[m] > 0}
-            med = float(np.median(list(ratios.values()))) if ratios else math.nan
-            out[side] = {m: ("weaker" if r < med else "not weaker") for m, r in ratios.items()}
-        return out
+    def participant_rank(ds):  # Spearman of f_c / f_base across the data set's groups, permutation p-value
+        if ds not in rank_text:
+            ms = [m for (d, m) in fc if d == ds and m in f_base and f_base[m] > 0]
+            a = np.array([fc[(ds, m)][0] / f_base[m] for m in ms])
+            b = np.array([fc[(ds, m)][1] / f_base[m] for m in ms])
+            rho, p = _spearman_perm(a, b, seed + zlib.crc32(f"{ctx.rel}|{ds}".encode()) % 10_000)
+            rank_text[ds] = f"; across the {len(ms)} groups of {ds}: Spearman rho {rho:.2f}, permutation p {p:.3f}"
+        return rank_text[ds]
 
-    weak_cache: dict = {}
     rows = []
     for r in df.to_dict("records"):
         ds, q, m, th, o = r["dataset"], r["quantity"], r["muscle"], r["_t"], r["_o"]
@@ -509,6 +838,10 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
         d = o - th
         reasons = ["random", "q"] + (["geometry"] if ds not in simulated else [])
         label = f"{ds}: {m + ' ' if m else ''}{q}"
+        basis = ("estimate from data simulated with the printed f_a (an input, not scored)" if ds in simulated
+                 else "estimate from the participant's printed forces (Table A.2, an input)")
+        test, tv, ov, aux, stratum = "", math.nan, math.nan, (math.nan, math.nan), ds
+        th_txt = _fmt(th)
         if q == "f_c":
             tol = max(0.5, tc.value * abs(th))
             within = abs(d) <= tol
@@ -518,15 +851,14 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
                 def cls(x):
                     return "recovers f_a" if abs(x - f_true) <= tc.value * f_true else (
                         "above f_a" if x > f_true else "below f_a")
-                ct, co = cls(th), cls(o)
-                concl = f"same recovery of f_a = {f_true:g} N (within {tc.value:.0%}): thesis {ct}, ours {co}"
-            elif m in base:
-                w = weak_cache.setdefault(ds, rel_weak(ds))
-                ct, co = w[0].get(m), w[1].get(m)
-                concl = (f"same relative strength (f_c/f_base vs the median group of {ds}): thesis {ct}, ours {co}")
+                concl = f"same recovery of f_a = {f_true:g} N (within {tc.value:.0%}): thesis {cls(th)}, ours {cls(o)}"
+                test, tv, ov, aux = "recovers_f_a", th, o, (f_true, tc.value)
+            elif m in f_base and f_base[m] > 0:
+                concl = (f"same rank of f_c / f_base (printed baseline {f_base[m]:g} N) among the groups of {ds}"
+                         + participant_rank(ds))
+                test, tv, ov = "relative_strength_rank", th / f_base[m], o / f_base[m]
             else:
-                ct, co, concl = None, None, "no baseline strength for this group: conclusion not available"
-            v = _verdict(within, ct is not None and ct == co)
+                concl = "no baseline strength for this group: conclusion not available"
             tol_txt = _tol_text(tc, f"|d| <= max(0.5 N, {tc.value:g} x thesis) = {tol:.3g} N")
             label += " (N)"
         elif q in ("sigma_c", "v_c"):
@@ -545,34 +877,40 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
                 label += " (N^2)"
             within = abs(d) <= tol
             cls = lambda s: "-" if math.isnan(s) else ("identified" if s < tab.value else "uncertain")  # noqa: E731
-            ct, co = cls(s_t), cls(s_o)
-            v = _verdict(within, ct != "-" and ct == co)
-            concl = f"same identification (relative spread < {tab.value:g}): thesis {ct}, ours {co}"
+            concl = f"same identification (relative spread < {tab.value:g}): thesis {cls(s_t)}, ours {cls(s_o)}"
+            test, tv, ov, aux, stratum = "identification", s_t, s_o, (tab.value, math.nan), q
         elif q == "D_fc":
-            t = ctx.tols["D_fc_abs"]
+            t, band = ctx.tols["D_fc_abs"], ctx.tols["D_fc_band"].value
             within = abs(d) <= t.value
-            ct, co = th >= eps_d, o >= eps_d
-            v = _verdict(within, ct == co)
             tol_txt = _tol_text(t, f"|d| <= {t.value:g}")
-            concl = f"same side of the convergence threshold eps_D = {eps_d:g}: thesis {ct}, ours {co}"
+            concl = (f"same fit: |d| <= {band:g} or both >= eps_D = {eps_d:g} (thesis {th:.2f}, ours {o:.2f})")
+            test, tv, ov, aux, stratum = "D_fc_same_fit", th, o, (band, eps_d), ""
         elif q == "iters":
             t = ctx.tols["iters_rel"]
-            tol = max(1.0, t.value * abs(th))
-            within = abs(d) <= tol
-            ct = "did not converge" if "thesis did not converge" in note else "converged"
-            co = "did not converge" if "ours did not converge" in note else "converged"
-            v = _verdict(within, ct == co)
-            tol_txt = _tol_text(t, f"|d| <= max(1, {t.value:g} x thesis) = {tol:.3g}")
+            cens_t = "thesis did not converge" in note
+            cens_o = "ours did not converge" in note
+            if cens_t or cens_o:
+                # censored: '30+' is the statement 'did not converge within maxIter'
+                within = cens_t and cens_o and o >= th
+                tol_txt = _tol_text(t, "censored: matches only if both stopped at maxIter without converging")
+            else:
+                tol = max(1.0, t.value * abs(th))
+                within = abs(d) <= tol
+                tol_txt = _tol_text(t, f"|d| <= max(1, {t.value:g} x thesis) = {tol:.3g} (both converged)")
+            ct = "did not converge" if cens_t else "converged"
+            co = "did not converge" if cens_o else "converged"
             concl = f"same convergence: thesis {ct}, ours {co}"
+            test, tv, ov, stratum = "convergence", float(not cens_t), float(not cens_o), ""
+            th_txt = f"{_fmt(th)}+" if cens_t else _fmt(th)
+            o_txt = f"{_fmt(o, 4)}+" if cens_o else _fmt(o, 4)
         else:  # any other printed quantity: relative tolerance only
             tol = tc.value * abs(th)
             within = abs(d) <= tol
-            v = _verdict(within, None)
             tol_txt = _tol_text(tc, f"|d| <= {tc.value:g} x thesis")
             concl = "no conclusion test defined for this quantity"
-        th_txt = f"{_fmt(th)}+" if (q == "iters" and "thesis did not converge" in note) else _fmt(th)
-        rows.append(_row(chapter, source, label, th_txt, _fmt(o, 4), d, v, tol_txt, concl,
-                         _reason(v, reasons), ctx.rel))
+        ours_txt = o_txt if q == "iters" else _fmt(o, 4)
+        rows.append(_row(chapter, source, label, th_txt, ours_txt, d, within, tol_txt, concl, reasons, ctx.rel,
+                         basis=basis, test=test, tv=tv, ov=ov, aux=aux, stratum=stratum))
     return rows
 
 
@@ -586,12 +924,12 @@ CH5_CAPTION_CLAIMS = {"p2m7": ("weak", "TC-E")}
 
 def _weakness_claim(ctx: Context, source: str, model: str) -> list[dict]:
     """'weakness of <group> identified in <data set> with high confidence': f_c closer to the weakened f_a than to
-    the baseline f_base, and sigma_c below the identification threshold."""
+    the unweakened f_a ('norm'), and sigma_c below the identification threshold."""
     if model not in CH5_CAPTION_CLAIMS:
         return []
     ds, g = CH5_CAPTION_CLAIMS[model]
     df = _read(ctx.path)
-    df["muscle"] = df["muscle"].fillna("")
+    df["muscle"] = df["muscle"].astype(object).fillna("")
     cell = {(r["dataset"], r["quantity"], r["muscle"]): (_num(r["thesis"]), _num(r["ours"]))
             for r in df.to_dict("records")}
     need = [(ds, "f_c", g), (ds, "sigma_c", g), (ds, "f_a", g)]
@@ -607,13 +945,14 @@ def _weakness_claim(ctx: Context, source: str, model: str) -> list[dict]:
 
     h_t, f_t, s_t = holds(0)
     h_o, f_o, s_o = holds(1)
-    v = MATCHES if h_o else DIFFERS
-    return [_row("Chapter 5", source.replace(" (", " caption (", 1), f"{ds}: weakness of {g} identified with high confidence",
-                 "holds", "holds" if h_o else "does not hold", math.nan, v,
-                 _tol_text(ctx.tols["identified_sigma"], f"f_c closer to f_a = {f_a:g} N than to f_base = {base:g} N "
-                                                        f"and sigma_c < {thr:g}"),
+    return [_row("Chapter 5", source.replace(" (", " caption (", 1),
+                 f"{ds}: weakness of {g} identified with high confidence", "holds",
+                 "holds" if h_o else "does not hold", math.nan, h_o,
+                 _tol_text(ctx.tols["identified_sigma"], f"f_c closer to f_a = {f_a:g} N than to the unweakened "
+                                                        f"f_a = {base:g} N ('norm') and sigma_c < {thr:g}"),
                  f"thesis f_c {f_t:g} N, sigma_c {s_t:g} ({'holds' if h_t else 'does not hold'} on the printed "
-                 f"numbers); ours f_c {f_o:.4g} N, sigma_c {s_o:.3g}", _reason(v, ("random", "q")), ctx.rel)]
+                 f"numbers); ours f_c {f_o:.4g} N, sigma_c {s_o:.3g}", ("random", "q"), ctx.rel,
+                 basis="estimate from data simulated with the printed f_a (an input, not scored)")]
 
 
 def score_ch5(ctx: Context) -> list[dict]:
@@ -684,12 +1023,51 @@ def scorecard_inputs(paths: Iterable[str]) -> list[str]:
     return out
 
 
+def _finalize(df: pd.DataFrame, tols: Mapping[str, Tolerance], seed: int) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Chance rate of every conclusion test on these rows, then each row's verdict, conclusion note and reason."""
+    cmax = tols["conclusion_chance_max"].value
+    live = df[df["verdict"] != NOT_EVALUATED]
+    chance = chance_rates(live, seed)
+    rate = dict(zip(chance["test"], chance["chance_rate"]))
+    verdicts, notes, reasons, rates = [], [], [], []
+    for r in df.to_dict("records"):
+        if r["verdict"] == NOT_EVALUATED:
+            verdicts.append(NOT_EVALUATED), notes.append(r["conclusion"]), reasons.append(""), rates.append(math.nan)
+            continue
+        key = r["_test"]
+        c = rate.get(key, math.nan) if key else math.nan
+        usable = bool(key) and not math.isnan(c) and c <= cmax
+        same = usable and bool(r["_agree"])
+        v = MATCHES if r["_within"] else (SAME_CONCLUSION if same else DIFFERS)
+        note = r["conclusion"]
+        if key:
+            note += (f" [chance rate {c:.2f}]" if usable else
+                     f" [not a conclusion test here: chance rate {c:.2f} > {cmax:g}; the row can only match or differ]")
+        verdicts.append(v), notes.append(note), reasons.append(_reason(v, r["_codes"], r["_always"])), rates.append(c)
+    df = df.assign(verdict=verdicts, conclusion=notes, reason=reasons, chance_rate=rates)
+    return df, chance
+
+
+def _agreement(df: pd.DataFrame) -> pd.Series:
+    """Observed agreement of each row's conclusion test (vectorised per test: ranks need the whole stratum)."""
+    out = pd.Series(False, index=df.index)
+    for key in CONCLUSION_TESTS:
+        sub = df[(df["_test"] == key) & (df["verdict"] != NOT_EVALUATED)]
+        if len(sub):
+            ok = CONCLUSION_TESTS[key].agree(sub["_tv"].to_numpy(float), sub["_ov"].to_numpy(float),
+                                             sub[["_aux0", "_aux1"]].to_numpy(float),
+                                             sub["_stratum"].astype(str).to_numpy())
+            out[sub.index] = ok
+    return out
+
+
 def build_scorecard(paths: Iterable[str], config: Mapping,
                     overrides: Mapping[str, float] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Score every registered comparison table among ``paths``.
 
-    Returns ``(scorecard, not_evaluated)``: scored rows (verdict in :data:`VERDICTS`) and the items this
-    configuration could not evaluate.
+    Returns ``(scorecard, not_evaluated)``: scored rows (verdict in :data:`VERDICTS`, kind in :data:`KINDS`) and the
+    items this configuration could not evaluate. ``scorecard.attrs["chance"]`` holds the chance rate of every
+    conclusion test (:func:`chance_rates`), for :func:`tolerance_table`.
     """
     tols = tolerances(overrides)
     rows: list[dict] = []
@@ -699,37 +1077,67 @@ def build_scorecard(paths: Iterable[str], config: Mapping,
             continue
         s, m = hit
         rows += s.loader(Context(config=config, tols=tols, match=m, path=Path(p), rel=str(p)))
-    df = pd.DataFrame(rows, columns=COLUMNS)
+    return score_rows(rows, config, overrides)
+
+
+def score_rows(rows: Sequence[dict], config: Mapping,
+               overrides: Mapping[str, float] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Verdicts of loader rows (:func:`_row`): chance rate of each conclusion test on these rows, then per row
+    matches / same conclusion (only by a test whose chance rate is small) / differs."""
+    tols = tolerances(overrides)
+    df = pd.DataFrame(list(rows))
+    if not len(df):
+        empty = pd.DataFrame(columns=COLUMNS)
+        empty.attrs["chance"] = chance_rates(pd.DataFrame(columns=["_test"]))
+        return empty, empty.copy()
+    df["_agree"] = _agreement(df)
+    df, chance = _finalize(df, tols, int(config.get("seed", 0) or 0))
     order = {c: i for i, c in enumerate(CHAPTER_ORDER)}
     df["_o"] = df["chapter"].map(lambda c: order.get(c, len(order)))
-    df = df.sort_values("_o", kind="stable").drop(columns="_o").reset_index(drop=True)
+    df = df.sort_values("_o", kind="stable").reset_index(drop=True)
+    df = df[COLUMNS]
     skipped = df[df["verdict"] == NOT_EVALUATED].reset_index(drop=True)
     scored = df[df["verdict"] != NOT_EVALUATED].reset_index(drop=True)
     bad = set(scored["verdict"]) - set(VERDICTS)
     if bad:
         raise AssertionError(f"invalid verdicts {bad}")
+    if set(scored["kind"]) - set(KINDS):
+        raise AssertionError(f"invalid kinds {set(scored['kind']) - set(KINDS)}")
+    scored.attrs["chance"] = chance
     return scored, skipped
 
 
+SUMMARY_COLUMNS = ["chapter", "kind", "items", "matches", "same_conclusion", "differs", "not_evaluated"]
+
+
 def summarize(scored: pd.DataFrame, skipped: pd.DataFrame | None = None) -> pd.DataFrame:
-    """Counts per chapter and verdict (plus items not evaluated in this configuration), and a total row."""
+    """Counts per chapter, kind (independent first) and verdict, items not evaluated in this configuration, and
+    totals per kind (chapter 'all'). Narrow on purpose (the report's front page shows it)."""
     skipped = skipped if skipped is not None else pd.DataFrame(columns=COLUMNS)
     chapters = [c for c in CHAPTER_ORDER if c in set(scored["chapter"]) | set(skipped["chapter"])]
     chapters += sorted((set(scored["chapter"]) | set(skipped["chapter"])) - set(chapters))
     rows = []
     for c in chapters + ["all"]:
-        sc = scored if c == "all" else scored[scored["chapter"] == c]
-        sk = skipped if c == "all" else skipped[skipped["chapter"] == c]
-        n = len(sc)
-        counts = {v: int((sc["verdict"] == v).sum()) for v in VERDICTS}
-        rows.append({"chapter": c, "sources": "; ".join(dict.fromkeys(sc["source"].map(_source_family))),
-                     "items": n, "matches": counts[MATCHES],
-                     "same_conclusion_different_number": counts[SAME_CONCLUSION], "differs": counts[DIFFERS],
-                     "share_matches": round(counts[MATCHES] / n, 3) if n else math.nan,
-                     "share_same_conclusion_or_better": round((counts[MATCHES] + counts[SAME_CONCLUSION]) / n, 3)
-                     if n else math.nan,
-                     "not_evaluated": len(sk)})
-    return pd.DataFrame(rows)
+        for kind in KINDS:
+            sc = scored if c == "all" else scored[scored["chapter"] == c]
+            sc = sc[sc["kind"] == kind]
+            sk = skipped if c == "all" else skipped[skipped["chapter"] == c]
+            counts = {v: int((sc["verdict"] == v).sum()) for v in VERDICTS}
+            rows.append({"chapter": c, "kind": kind, "items": len(sc), "matches": counts[MATCHES],
+                         "same_conclusion": counts[SAME_CONCLUSION], "differs": counts[DIFFERS],
+                         "not_evaluated": len(sk) if kind == INDEPENDENT else 0})
+    return pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
+
+
+def headline(summary: pd.DataFrame) -> str:
+    """One sentence: independent counts first, calibrated counts separately."""
+    s = summary.set_index(["chapter", "kind"])
+
+    def part(kind):
+        r = s.loc[("all", kind)]
+        return (f"{int(r['items'])} {kind} items: {int(r['matches'])} match, {int(r['same_conclusion'])} same "
+                f"conclusion, {int(r['differs'])} differ")
+    return part(INDEPENDENT) + "; " + part(CALIBRATED) + " (calibrated: agreement shows the calibration)"
 
 
 def _source_family(source: str) -> str:
@@ -740,7 +1148,12 @@ def _source_family(source: str) -> str:
 
 def header_lines(config: Mapping, tols: Mapping[str, Tolerance]) -> list[str]:
     over = [k for k, t in tols.items() if t.overridden]
+    m = config.get("model", {})
     return ["thesis scorecard: every number the thesis prints that we reproduce, ours beside it "
-            "(neckstrength.report.scorecard; tolerances and their reasons: scorecard_tolerances.csv)",
-            f"verdicts: {' / '.join(VERDICTS)}; difference = ours - thesis; seed {config.get('seed')}",
+            "(neckstrength.report.scorecard; tolerances, conclusion tests and chance rates: scorecard_tolerances.csv)",
+            f"kinds: {' / '.join(KINDS)} (calibrated = an input was fitted or drawn to the thesis numbers that "
+            f"determine this one); verdicts: {' / '.join(VERDICTS)}; difference = ours - thesis; seed "
+            f"{config.get('seed')}",
+            f"model.unprinted_strengths: {m.get('unprinted_strengths', 'b3_implied')}; model.grouping_supplements: "
+            f"{m.get('grouping_supplements', True)}",
             "tolerance overrides from config report.tolerances: " + (", ".join(over) if over else "none")]

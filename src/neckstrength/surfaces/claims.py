@@ -8,6 +8,20 @@ import pandas as pd
 from neckstrength.surfaces.surfaces import Surface
 
 
+# kinematic DOF of the variants (Sec. 4.2.1.2): spatial 3 per joint, planar 1 per joint
+KINEMATIC_DOF = {"s7": 21, "s3": 9, "s2": 6, "p7": 7, "p3": 3, "p2": 2}
+
+
+# "low number of muscles" for a given number of DOF: fewer than one agonist-antagonist pair of groups per DOF (a
+# set of m actuators can positively span n torque directions only if m >= n + 1; a pair per DOF is the usual
+# architecture). Fixed before looking at which variants fail.
+MUSCLES_PER_DOF = 2
+
+
+def variant_dof(variant: str) -> int | None:
+    return KINEMATIC_DOF.get(str(variant).split("-", 1)[0])
+
+
 def _strength(surfaces: dict[str, Surface], variant: str, factor: float) -> pd.Series:
     s = surfaces[variant].strength
     return s[np.isclose(s["factor"], factor)].set_index("direction")["force_N"]
@@ -86,14 +100,28 @@ def evaluate_claims(surfaces: dict[str, Surface], directions: pd.DataFrame, refe
             "more muscle groups raise strength (spatial 3 joints)", "4.3.4")
     compare(["s3-sagittal", "s3-anatomical"],
             "the anatomical grouping beats the sagittal grouping at (about) equal m (spatial 3 joints)", "4.3.4")
-    # directions a model cannot produce
+    # directions a model cannot produce (Sec. 4.3.4: "Model variants with a high number of degrees of freedom and
+    # low number of muscles were unable to produce forces in some test directions"), evaluated for EVERY variant:
+    # a variant with fewer than MUSCLES_PER_DOF muscle groups per kinematic DOF is predicted to fail some direction,
+    # every other variant to produce all of them. Either prediction can fail.
     for v in sorted(have):
         st = surfaces[v].strength
         st = st[np.isclose(st["factor"], 1.0)]
         bad = st[st["status"] != "optimal"]
-        if len(bad):
-            add(f"{v} cannot produce some directions (many DOF, few muscles)", "4.3.4", v, True,
-                f"{len(bad)}/{len(st)} directions not producible: {', '.join(bad['direction'])}")
+        n = variant_dof(v)
+        act = surfaces[v].activation
+        m = int(act.loc[np.isclose(act["factor"], 1.0), "muscle"].nunique())
+        if n is None or m == 0:
+            add(f"{v}: producible directions", "4.3.4", v, None, "DOF or muscle count of this variant unknown")
+            continue
+        few = m < MUSCLES_PER_DOF * n
+        listed = f": {', '.join(bad['direction'])}" if len(bad) else ""
+        if few:
+            add(f"{v} (n = {n} DOF, m = {m} < {MUSCLES_PER_DOF}n) cannot produce some directions", "4.3.4", v,
+                len(bad) > 0, f"{len(bad)}/{len(st)} directions not producible{listed}")
+        else:
+            add(f"{v} (n = {n} DOF, m = {m} >= {MUSCLES_PER_DOF}n) produces every direction", "4.3.4", v,
+                len(bad) == 0, f"{len(bad)}/{len(st)} directions not producible{listed}")
 
     if slopes is not None:
         mf_active = None
