@@ -17,7 +17,9 @@ entropy-reducing sequential test selection). Subpackages, each importing downwar
 - :mod:`neckstrength.gap`         the sim-to-real gap diagnosis
 - :mod:`neckstrength.report`      scorecard, tolerances, run records
 - :mod:`neckstrength.pipeline`    Snakemake glue, one module per rules file (science never imports it)
+- :mod:`neckstrength.trials`      a lab's raw trials -> max-force and activation tables, quality report
 - :mod:`neckstrength.session`, :mod:`neckstrength.cli`   applications on top of config and science
+- :mod:`neckstrength.estimate`   the ``estimate`` command: the Chapter 5/6 pipeline steps on one table
 
 Importing the package has no side effects.
 """

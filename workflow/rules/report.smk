@@ -29,8 +29,8 @@ rule report_scorecard:
             labels={"table": "tolerances and their reasons"},
         ),
     params:
-        settings=settings("chapter3.mixed_model.alpha", "chapter4.anterior_max_azimuth_deg",
-            "chapter4.claim_tolerance_rel", "chapter5.eps_D", "seed"),
+        settings=settings("chapter3.mixed_model.alpha", "chapter4", "chapter5.eps_D", "data.model_dir",
+            "data.thesis_dir", "model", "seed"),
         tolerances=config["report"]["tolerances"],
     log:
         "logs/report/scorecard.log",
