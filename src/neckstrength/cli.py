@@ -248,7 +248,6 @@ def _cmd_session(args) -> int:
 def _cmd_diagnose(args) -> int:
     from neckstrength.config import (
         build_directions,
-        derive_rng,
         diagnosis_settings,
         gap_blind_dataset,
         gap_context,
@@ -272,7 +271,7 @@ def _cmd_diagnose(args) -> int:
         ctx = gap_context(cfg, model, directions)
         data = gap_blind_dataset(cfg, ctx, directions, args.dataset)
         settings = diagnosis_settings(cfg)
-        s = run_diagnosis(ctx, data, settings, derive_rng(cfg["seed"], f"gap/{model}/{args.dataset}"), directions,
+        s = run_diagnosis(ctx, data, settings, directions,
                           gap_withheld_activations(cfg, ctx, args.dataset), outputs,
                           gap_settings_text(cfg, settings), model)
     except ValueError as exc:

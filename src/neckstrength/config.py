@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import json
-import zlib
 from dataclasses import fields
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
@@ -38,6 +37,7 @@ from neckstrength.model.geometry import (
     reconstruct_test_points,
 )
 from neckstrength.model.reduction import ReducedModel, named_model
+from neckstrength.seeds import derive_rng, seed_sequence  # noqa: F401  (re-exported)
 from neckstrength.sequential.algorithms import SequentialSettings
 from neckstrength.sequential.joint import JointSettings
 
@@ -140,17 +140,6 @@ def _sorted(x: Any) -> Any:  # canonical order: reordering keys in a YAML file r
 def settings_view(selected: Mapping, rule: str = "?") -> Settings:
     """The :class:`Settings` view of what :func:`select_settings` returned (a rule's ``params.settings``)."""
     return Settings(selected["values"], selected["keys"], rule)
-
-
-def seed_sequence(seed: int, key: str | bytes, *extra: int) -> np.random.SeedSequence:
-    """The one derivation of the project's random streams: ``SeedSequence([seed, crc32(key), *extra])``."""
-    key = key.encode() if isinstance(key, str) else key
-    return np.random.SeedSequence([int(seed), zlib.crc32(key), *extra])
-
-
-def derive_rng(seed: int, key: str | bytes, *extra: int) -> np.random.Generator:
-    """``numpy.random.default_rng(seed_sequence(seed, key, *extra))``."""
-    return np.random.default_rng(seed_sequence(seed, key, *extra))
 
 
 def full_model_from_config(config: Mapping) -> FullModel:

@@ -255,13 +255,18 @@ def read_table(path: str | Path, schema: Schema) -> pd.DataFrame:
 MAX_PLAUSIBLE_FORCE_N = 2000.0
 
 
+#: A participant id: letter first, then letters, digits, '_' or '-' (a wildcard and a folder name).
+PARTICIPANT_ID = r"[A-Za-z][A-Za-z0-9_-]*"
+
 MEASUREMENT_SCHEMA = Schema(
     name="max-force measurements (Table A.2 layout)",
     columns=(Column("direction", "str"),),
     unique=("direction",),
-    pattern_columns=((r"S\d+|P[\w-]+|sim[\w-]*|norm|weak", Column("", "float", "N", 0.0, MAX_PLAUSIBLE_FORCE_N,
-                                                                   allow_missing=True, min_exclusive=True)),
-                     (r"avg|sd", Column("", "float", "N", 0.0, MAX_PLAUSIBLE_FORCE_N, allow_missing=True))),
+    # summary columns first; then any safe participant id (a letter, then letters, digits, '_' or '-': it becomes a
+    # Snakemake wildcard and a folder name), e.g. S003, P01, subject1, lab-B_2
+    pattern_columns=((r"avg|sd", Column("", "float", "N", 0.0, MAX_PLAUSIBLE_FORCE_N, allow_missing=True)),
+                     (PARTICIPANT_ID, Column("", "float", "N", 0.0, MAX_PLAUSIBLE_FORCE_N,
+                                             allow_missing=True, min_exclusive=True))),
 )
 
 
@@ -269,8 +274,7 @@ ACTIVATION_SCHEMA = Schema(
     name="normalised activation at max force (Table A.3 layout)",
     columns=(Column("direction", "str"),),
     unique=("direction",),
-    pattern_columns=((r"S\d+|P[\w-]+|sim[\w-]*|norm|weak|avg|sd", Column("", "float", "1", 0.0, 1.0,
-                                                                          allow_missing=True)),),
+    pattern_columns=((PARTICIPANT_ID, Column("", "float", "1", 0.0, 1.0, allow_missing=True)),),
 )
 
 

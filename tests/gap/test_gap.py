@@ -5,6 +5,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from neckstrength.config import build_directions, gap_context, load_config
@@ -61,7 +62,7 @@ def test_registry_picks_up_a_new_effect_class(ctx_p2):
         T = Simulator(ctx_p2, base_instance(ctx_p2)).forces(ctx_p2.model.strengths[None])[0]
         s = dg.DiagnosisSettings(effects=("test_only_flexor_gain",), grid_points=2, folds=7, pairs_top=0,
                                  bootstrap=10, starts=1, reach_samples=0, reach_iter=0, fit=FitSettings(max_iter=5))
-        out = dg.diagnose(ctx_p2, [dg.BlindData("x", T)], s, np.random.default_rng(0))
+        out = dg.diagnose(ctx_p2, [dg.BlindData("x", T)], s)
         assert "test_only_flexor_gain" in set(out[0].effects["candidate"])
     finally:
         EFFECTS.pop("test_only_flexor_gain", None)
@@ -129,8 +130,8 @@ def test_heldout_directions_never_enter_the_fit(ctx_p2):
     # whole diagnosis: a held-out prediction does not depend on that direction's measurement
     s = dg.DiagnosisSettings(effects=("cocontraction",), grid_points=3, folds=7, pairs_top=0, bootstrap=0, starts=2,
                              reach_samples=0, reach_iter=0, fit=FitSettings(max_iter=8))
-    a = dg.diagnose(ctx_p2, [dg.BlindData("a", T[0])], s, np.random.default_rng(3))[0]
-    b = dg.diagnose(ctx_p2, [dg.BlindData("a", T2[0])], s, np.random.default_rng(3))[0]
+    a = dg.diagnose(ctx_p2, [dg.BlindData("a", T[0])], s)[0]
+    b = dg.diagnose(ctx_p2, [dg.BlindData("a", T2[0])], s)[0]
     for col in ("heldout_N", "chosen_heldout_N"):
         assert a.residuals[col].iloc[2] == b.residuals[col].iloc[2]
     assert a.residuals["fit_N"].iloc[2] != b.residuals["fit_N"].iloc[2]   # the all-direction fit does use it
@@ -163,3 +164,26 @@ def test_benchmark_identifies_a_strong_cocontraction_floor(ctx_s3):
     assert conf.loc["cocontraction"].sum() == 4 and conf.loc["none", "none"] == 2
     es = tabs["effect_size"]
     assert len(es) == 4 and (es["error_share_of_range"].abs() < 0.35).mean() >= 0.75
+
+
+def test_same_answer_alone_in_a_batch_and_in_any_order(ctx_p2):
+    # issue 17: every random draw of a data set (folds, bootstrap, reach samples) derives from the seed and its
+    # name, so a data set's diagnosis does not depend on which other data sets are diagnosed with it, or their order
+    sim = Simulator(ctx_p2, base_instance(ctx_p2))
+    rng = np.random.default_rng(11)
+    F = ctx_p2.model.strengths[None] * np.exp(rng.normal(0, 0.2, (3, ctx_p2.model.m)))
+    T = sim.forces(F) * np.exp(rng.normal(0, 0.05, (3, ctx_p2.K)))
+    data = [dg.BlindData(n, T[i]) for i, n in enumerate(("subject1", "lab-B_2", "S003"))]
+    s = dg.DiagnosisSettings(effects=("cocontraction",), grid_points=2, folds=4, pairs_top=0, bootstrap=50,
+                             starts=1, reach_samples=20, reach_iter=1, fit=FitSettings(max_iter=6), seed=5)
+    alone = dg.diagnose(ctx_p2, [data[1]], s)[0]
+    batch = {d.name: d for d in dg.diagnose(ctx_p2, data, s)}
+    rev = {d.name: d for d in dg.diagnose(ctx_p2, data[::-1], s)}
+    for other in (batch["lab-B_2"], rev["lab-B_2"]):
+        pd.testing.assert_frame_equal(alone.effects, other.effects)
+        pd.testing.assert_frame_equal(alone.residuals, other.residuals)
+    # different names, different fold splits (the split is not one shared draw)
+    folds = [batch[n].residuals["fold"].to_numpy() for n in batch]
+    assert any(not np.array_equal(folds[0], f) for f in folds[1:])
+    with pytest.raises(ValueError, match="unique"):
+        dg.diagnose(ctx_p2, [data[0], data[0]], s)

@@ -170,5 +170,5 @@ def run_benchmark(ctx: GapContext, bs: BenchmarkSettings, ds: DiagnosisSettings,
     cases = generate_cases(ctx, bs, rng)
     if progress:
         progress(f"benchmark: {len(cases)} cases generated (labels withheld from the diagnosis)")
-    diags = diagnose(ctx, blind(cases), ds, np.random.default_rng(rng.integers(2**32)), progress)
+    diags = diagnose(ctx, blind(cases), ds, progress)
     return cases, diags, score_benchmark(ctx, cases, diags, ds.epsilon)

@@ -33,7 +33,6 @@ pattern search).
 from __future__ import annotations
 
 import json
-import zlib
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -44,6 +43,7 @@ from neckstrength.estimation.discrepancy import data_discrepancy
 from neckstrength.gap.effects import Effect, GapContext, available_effects, base_instance, compose, effect_label
 from neckstrength.gap.fit import FitSettings, Simulator, fit_strengths, make_cache, start_point
 from neckstrength.model.geometry import PLANE_GRID, WRENCH_COMPONENTS
+from neckstrength.seeds import derive_rng
 
 
 @dataclass(frozen=True)
@@ -111,7 +111,7 @@ class _Engine:
                  registry: dict[str, Effect]):
         self.ctx, self.s, self.folds, self.registry = ctx, s, folds, registry
         self.cache = make_cache()
-        self.F = int(folds.max()) + 1
+        self.F = int(folds.max()) + 1          # folds: (data sets x directions)
         self.nd = len(data)
         K = ctx.K
         T, W, ds, fo = [], [], [], []
@@ -121,7 +121,7 @@ class _Engine:
                 raise ValueError(f"data set {d.name}: need {K} positive finite forces")
             for fold in list(range(self.F)) + [-1]:
                 T.append(f)
-                W.append((folds != fold).astype(float) if fold >= 0 else np.ones(K))
+                W.append((folds[i] != fold).astype(float) if fold >= 0 else np.ones(K))
                 ds.append(i)
                 fo.append(fold)
         self.T, self.W = np.array(T), np.array(W)
@@ -164,7 +164,7 @@ class _Engine:
         if len(idx) == 0:
             return old
         S = max(1, int(self.s.starts))
-        rng = np.random.default_rng([self.s.seed, zlib.crc32(repr(key).encode())])
+        rng = derive_rng(self.s.seed, repr(key))
         phi0 = np.repeat(warm[idx], S, axis=0)
         pert = rng.normal(0.0, self.s.start_spread, phi0.shape)
         pert[::S] = 0.0
@@ -219,7 +219,7 @@ def _cv_predictions(engine: _Engine, chosen: list[tuple], i: int) -> np.ndarray:
         f = engine.pfold[p]
         if f < 0:
             continue
-        sel = engine.folds == f
+        sel = engine.folds[i] == f
         pred[sel] = engine.results[chosen[p]]["forces"][p, sel]
     return pred
 
@@ -419,13 +419,20 @@ def _muscle_table(ctx: GapContext, alpha: np.ndarray, r_in, r_cv) -> pd.DataFram
 
 
 def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSettings = DiagnosisSettings(),
-             rng: np.random.Generator | None = None, progress=None) -> list[DatasetDiagnosis]:
-    """Diagnose each data set in ``data`` (forces only) with the model of ``ctx``; see the module docstring."""
+             progress=None) -> list[DatasetDiagnosis]:
+    """Diagnose each data set in ``data`` (forces only) with the model of ``ctx``; see the module docstring.
+
+    Every random draw of a data set (its fold split, bootstrap, reach samples) derives from ``settings.seed`` and
+    the data set's name, so a data set gets the same answer alone or in a batch, in any order, by any path.
+    """
     s = settings
-    rng = rng or np.random.default_rng(s.seed)
     say = progress or (lambda msg: None)
     K = ctx.K
-    folds = direction_folds(K, s.folds, rng)
+    names = [d.name for d in data]
+    if len(set(names)) != len(names):
+        raise ValueError(f"data set names must be unique: {names}")
+    folds = np.array([direction_folds(K, s.folds, derive_rng(s.seed, f"gap/folds/{n}")) for n in names]
+                     ).reshape(len(data), K)
     effects = available_effects(ctx, s.effects)
     eng = _Engine(ctx, data, s, folds, {e.name: e for e in effects})
     say(f"{len(data)} data set(s), {K} directions, {eng.F} folds, {eng.P} fitting problems; effects: "
@@ -520,14 +527,14 @@ def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSett
     # ---- per data set results
     out = []
     for i, dat in enumerate(data):
-        out.append(_dataset_result(eng, i, dat, cand_datasets, cand_params, selections, refined, cv_pred, rng))
+        out.append(_dataset_result(eng, i, dat, cand_datasets, cand_params, selections, refined, cv_pred))
         say(f"{dat.name}: chosen {out[-1].summary['chosen']}; held-out gap "
             f"{out[-1].summary['gap_before']:.3f} -> {out[-1].summary['gap_after']:.3f} (1 - D_cv)")
     return out
 
 
-def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_params, selections, refined, cv_pred,
-                    rng) -> DatasetDiagnosis:
+def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_params, selections, refined,
+                    cv_pred) -> DatasetDiagnosis:
     ctx, s = eng.ctx, eng.s
     K = ctx.K
     T = np.asarray(dat.forces, float)
@@ -538,7 +545,8 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
     score = {c: (1 - dcv[c].mean()) + s.penalty * cand_params[c] for c in cands}
     # bootstrap over directions
     B = int(s.bootstrap)
-    idx = rng.integers(0, K, (B, K)) if B > 0 else np.zeros((0, K), int)
+    idx = (derive_rng(s.seed, f"gap/bootstrap/{dat.name}").integers(0, K, (B, K)) if B > 0
+           else np.zeros((0, K), int))
     boot = np.array([[(1 - dcv[c][ix].mean()) + s.penalty * cand_params[c] for c in cands] for ix in idx])
     pbest = np.bincount(boot.argmin(axis=1), minlength=len(cands)) / max(B, 1) if B else np.full(len(cands), np.nan)
     chosen = min(cands, key=lambda c: score[c])
@@ -575,13 +583,14 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
     fm = sim_b.muscles(phi_b)[0]
     fb, st, _, alpha_b = sim_b.run(fm[None], return_alpha=True)
     env = reach_envelope(sim_b, T, phi_b, eng.prior[pfull] + np.log(s.fit.bounds_rel[0]),
-                         eng.prior[pfull] + np.log(s.fit.bounds_rel[1]), s.reach_samples, s.reach_iter, rng)
+                         eng.prior[pfull] + np.log(s.fit.bounds_rel[1]), s.reach_samples, s.reach_iter,
+                         derive_rng(s.seed, f"gap/reach/{dat.name}"))
     chosen_key = refined[chosen][pfull]
     f_ch_full = eng.results[chosen_key]["forces"][pfull]
     resid = pd.DataFrame({
         "direction": dirs["name"], "planes": dirs["planes"], "measured_N": T,
         "fit_N": f_in, "residual": r_in, "heldout_N": cv_pred["none"][i], "residual_cv": r_cv, "d_cv": d_cv,
-        "fold": eng.folds, "chosen_fit_N": f_ch_full, "chosen_heldout_N": cv_pred[chosen][i],
+        "fold": eng.folds[i], "chosen_fit_N": f_ch_full, "chosen_heldout_N": cv_pred[chosen][i],
         "chosen_residual_cv": rcv[chosen], "chosen_d_cv": dcv[chosen],
         "reach_s_min": env["s_min"], "reach_s_max": env["s_max"], "reach_s_fit": env["s_fit"]})
     resid["reach"] = np.where(env["s_max"] < 0, "too strong for the model",

@@ -24,15 +24,15 @@ DATASET_FILES = ("residuals", "planes", "components", "muscles", "effects", "str
 FIGURES = ("radar", "where", "effects", "activation")
 
 
-def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings, rng: np.random.Generator,
-                  directions: pd.DataFrame, a3: np.ndarray | None, outputs: Mapping[str, str | Path],
+def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings, directions: pd.DataFrame,
+                  a3: np.ndarray | None, outputs: Mapping[str, str | Path],
                   settings_text: str, model_name: str) -> dict:
     """Diagnose one data set and write every output (keys of ``outputs``); returns the summary."""
     t0 = time.time()
     dataset = data.name
     s = settings
     print(f"gap diagnosis: model {model_name}, data set {dataset}, {ctx.K} directions, forces only", flush=True)
-    diag = diagnose(ctx, [data], s, rng, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}", flush=True))[0]
+    diag = diagnose(ctx, [data], s, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}", flush=True))[0]
     act = activation_check(diag, a3)
     hdr = [f"gap diagnosis (issue 8): model {model_name}, data set {dataset}; forces only (Table A.3 withheld)"]
     tables = {"residuals": diag.residuals, "planes": diag.planes, "components": diag.components,

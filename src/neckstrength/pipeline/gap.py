@@ -34,8 +34,7 @@ def gap_diagnose(config: Mapping, model_name: str, dataset: str, directions_csv:
     ctx = gap_context(config, model_name, directions)
     data = gap_blind_dataset(config, ctx, directions, dataset)
     s = diagnosis_settings(config)
-    rng = derive_rng(config["seed"], f"gap/{model_name}/{dataset}")
-    return run_diagnosis(ctx, data, s, rng, directions, gap_withheld_activations(config, ctx, dataset), outputs,
+    return run_diagnosis(ctx, data, s, directions, gap_withheld_activations(config, ctx, dataset), outputs,
                          gap_settings_text(config, s), model_name)
 
 

@@ -8,8 +8,14 @@ from typing import Iterable, Mapping, Sequence
 import pandas as pd
 
 from neckstrength.report.runinfo import environment_table, runtime_by_rule, runtime_table
-from neckstrength.report.scorecard import (build_scorecard, header_lines, headline, summarize, tolerance_table,
-                                          tolerances)
+from neckstrength.report.scorecard import (
+    build_scorecard,
+    header_lines,
+    headline,
+    summarize,
+    tolerance_table,
+    tolerances,
+)
 
 
 def report_runtime(metadata_dir: str | Path, out_jobs, out_by_rule, exclude_rules: Iterable[str] = ()) -> pd.DataFrame:

@@ -7,7 +7,6 @@ import pandas as pd
 
 from neckstrength.surfaces.surfaces import Surface
 
-
 # kinematic DOF of the variants (Sec. 4.2.1.2): spatial 3 per joint, planar 1 per joint
 KINEMATIC_DOF = {"s7": 21, "s3": 9, "s2": 6, "p7": 7, "p3": 3, "p2": 2}
 
