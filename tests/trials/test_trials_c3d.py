@@ -50,6 +50,15 @@ def _write_c3d(path, data, labels, units, rate=1000.0):
     c["parameters"]["ANALOG"]["LABELS"]["value"] = tuple(labels)
     c["parameters"]["ANALOG"]["UNITS"]["value"] = tuple(units)
     c["data"]["analogs"] = data[None, :, :]
+    # ezc3d 1.7.2's writer cannot pass integer parameters held as numpy arrays to its C++ core with some numpy
+    # versions (SWIG overload error); as Python lists they write the same file
+    for group in c["parameters"].values():
+        if not isinstance(group, dict):
+            continue
+        for prm in group.values():
+            v = prm.get("value") if isinstance(prm, dict) else None
+            if isinstance(v, np.ndarray) and v.dtype.kind in "iu" and v.ndim == 1:
+                prm["value"] = [int(x) for x in v]
     c.write(str(path))
 
 

@@ -264,3 +264,11 @@ def settings(*keys):
         return select_settings(config, [k.format(**wc) for k in keys])
 
     return selected
+
+
+# Trial import (trials.smk): the trial table of one configured trial set.
+def trials_table(wildcards):
+    tables = config["trials"]["datasets"]
+    if wildcards.trialset not in tables:
+        raise ValueError(f"no trial table for '{wildcards.trialset}' in config trials.datasets ({', '.join(tables)})")
+    return tables[wildcards.trialset]

@@ -3,10 +3,6 @@
 # Trial tables: config trials.datasets {name: file}; settings: config trials.settings.
 
 
-def trials_table(wildcards):
-    return config["trials"]["datasets"][wildcards.trialset]
-
-
 rule trials_import:
     input:
         trials=trials_table,
