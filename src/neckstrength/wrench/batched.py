@@ -124,10 +124,10 @@ SIMPLEX_TOP_MAX = 48
 
 #: Bases the dual simplex found are learned into the cache at most this many per block, most
 #: frequent first, plus any basis that at least ``SIMPLEX_LEARN_MIN_ROWS`` rows of the block ended in.
-SIMPLEX_LEARN_PER_BLOCK = 64
+SIMPLEX_LEARN_PER_BLOCK = 2
 
 
-SIMPLEX_LEARN_MIN_ROWS = 2
+SIMPLEX_LEARN_MIN_ROWS = 64
 
 
 #: The ``'zero'`` rule of :class:`~neckstrength.wrench.problem._DirectionLP`: ``w <= ZERO_REL max(1, sum f)``.
@@ -145,6 +145,9 @@ _UPPER = int(highspy.HighsBasisStatus.kUpper)
 
 #: HiGHS is called from one thread at a time (``n_threads > 1`` parallelises the matrix work only).
 _HIGHS_LOCK = threading.Lock()
+
+
+_HASH_WEIGHTS = np.random.default_rng(20261123).integers(1, 2**62, size=4096, dtype=np.int64) | 1
 
 
 _BLAS: dict = {}
@@ -178,7 +181,7 @@ class _Basis:
     the basis is optimal. ``P`` (m x m): ``x = P @ f`` (forces), built lazily.
     """
 
-    __slots__ = ("key", "CW", "q", "w_basic", "dvec", "status", "basic", "T", "P", "hits", "total")
+    __slots__ = ("key", "CW", "q", "w_basic", "dvec", "status", "basic", "T", "P", "hits", "total", "Binv")
 
     def __init__(self, key, CW, q, w_basic, dvec, status, basic, T):
         self.key = key
@@ -401,6 +404,7 @@ class DirectionSolver:
         CW[:q] = C
         CW[q] = tw
         basis = _Basis(key, CW, q, w_basic, dvec, col, np.r_[bcols, m + 1 + brows], T)
+        basis.Binv = Binv                               # columns in the order of basis.basic
         self._keys[key] = basis
         self.bases.append(basis)
         self._D = None
@@ -455,7 +459,8 @@ class DirectionSolver:
         if self._packed is None or self._packed[0].shape[0] != len(used):
             SB = np.array([bb.basic for bb in used], dtype=np.int64).reshape(len(used), self.n)
             SS = np.array([bb.status for bb in used], dtype=np.int8).reshape(len(used), self.m + 1)
-            self._packed = (SB, SS)
+            SBinv = np.array([bb.Binv for bb in used], dtype=float).reshape(len(used), self.n, self.n)
+            self._packed = (SB, SS, SBinv)
         return self._packed
 
     def _simplex_rows(self, F, rows, start, used, w, status, alpha, src, open_):
@@ -463,7 +468,7 @@ class DirectionSolver:
         answered (``src = -3``) and their new bases learned. Returns the rows left for HiGHS."""
         n, m = self.n, self.m
         R = rows.size
-        SB, SS = self._packed_bases(used)
+        SB, SS, SBinv = self._packed_bases(used)
         want = alpha is not None
         out_w = np.zeros(R)
         out_code = np.empty(R, dtype=np.int8)
@@ -472,7 +477,7 @@ class DirectionSolver:
         out_alpha = np.empty((R if want else 1, m))
         out_piv = np.empty(R, dtype=np.int64)
         _simplex.solve_rows(self.A, self.lb, self.ub, self._Acol1, self._wscale, self._Rscale, self._absb, F,
-                            rows.astype(np.int64), start.astype(np.int64), SB, SS, SIMPLEX_MAX_ITER, PRIMAL_TOL,
+                            rows.astype(np.int64), start.astype(np.int64), SB, SS, SBinv, SIMPLEX_MAX_ITER, PRIMAL_TOL,
                             DUAL_TOL, GAP_REL, MAX_COND, want, out_w, out_code, out_basic, out_status,
                             out_alpha if want else np.empty((R, m)), out_piv)
         cert = out_code == _simplex.CERTIFIED
@@ -495,22 +500,26 @@ class DirectionSolver:
         """Cache the most frequent new bases among the simplex's certified final bases."""
         n = self.n
         keyarr = np.concatenate([np.sort(basic, axis=1), stat.astype(np.int64)], axis=1)
-        uniq, first, counts = np.unique(keyarr, axis=0, return_index=True, return_counts=True)
+        # group equal bases by a hash of the row (a collision only changes which bases are tried;
+        # every basis is built from an actual row and verified)
+        h = keyarr @ _HASH_WEIGHTS[:keyarr.shape[1]]
+        uh, first, counts = np.unique(h, return_index=True, return_counts=True)
         order = np.argsort(-counts, kind="stable")
         learned = 0
         for u in order:
             if learned >= SIMPLEX_LEARN_PER_BLOCK and counts[u] < SIMPLEX_LEARN_MIN_ROWS:
                 break
-            raw = uniq[u].tobytes()
+            row = keyarr[first[u]]
+            raw = row.tobytes()
             if raw in self._learned_raw:
                 continue
             self._learned_raw.add(raw)
             if len(self._learned_raw) > 8 * self.max_bases:
                 self._learned_raw.clear()
-            bset = uniq[u, :n]
+            bset = row[:n]
             bcols = bset[bset <= self.m]
             brows = bset[bset > self.m] - (self.m + 1)
-            col = uniq[u, n:].astype(np.int64)
+            col = row[n:].astype(np.int64)
             try:
                 bb = self._make_basis(bcols, brows, col, F[first[u]])
             except Exception:  # noqa: BLE001 - caching is an optimisation

@@ -38,10 +38,10 @@ LOWER, BASIC, UPPER = 0, 1, 2
 
 
 @njit(cache=True, nogil=True)
-def _invert(B, out):
-    """Gauss-Jordan inverse with partial pivoting; False if (numerically) singular."""
+def _invert(B, out, M):
+    """Gauss-Jordan inverse with partial pivoting (``M``: workspace); False if (numerically) singular."""
     n = B.shape[0]
-    M = B.copy()
+    M[:, :] = B
     for i in range(n):
         for j in range(n):
             out[i, j] = 1.0 if i == j else 0.0
@@ -91,18 +91,24 @@ def _column(A, j, out):
 
 @njit(cache=True, nogil=True)
 def _basis_matrix(A, basic, B):
-    n = A.shape[0]
-    col = np.empty(n)
+    n, mp1 = A.shape
     for k in range(n):
-        _column(A, basic[k], col)
-        for i in range(n):
-            B[i, k] = col[i]
+        j = basic[k]
+        if j < mp1:
+            for i in range(n):
+                B[i, k] = A[i, j]
+        else:
+            for i in range(n):
+                B[i, k] = 0.0
+            B[j - mp1, k] = -1.0
 
 
 @njit(cache=True, nogil=True)
 def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_tol, dual_tol, gap_rel,
-             max_cond, alpha_out, want_alpha):
+             max_cond, alpha_out, want_alpha, B, Binv, y, d, s, rhs, xB):
     """Optimality certificate of a basis for ``f``, from scratch. Returns (ok, w).
+
+    ``Binv``: the inverse of the basis matrix, computed afresh (not updated) by the caller.
 
     The tests of ``DirectionSolver._add_basis`` (dual feasibility, condition number) and of the
     cached checks (primal feasibility with the tolerance relative to the terms of ``T f``, the
@@ -110,11 +116,7 @@ def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_to
     """
     n, mp1 = A.shape
     m = mp1 - 1
-    B = np.empty((n, n))
-    Binv = np.empty((n, n))
     _basis_matrix(A, basic, B)
-    if not _invert(B, Binv):
-        return False, 0.0
     nB = 0.0
     nI = 0.0
     for k in range(n):
@@ -128,7 +130,8 @@ def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_to
     if not np.isfinite(nI) or nB * nI > max_cond:
         return False, 0.0
     # dual: B^T y = c_B (maximisation, c = e_w); reduced costs d = c - y A
-    y = np.zeros(n)
+    for i in range(n):
+        y[i] = 0.0
     for k in range(n):
         if basic[k] == m:
             for i in range(n):
@@ -140,8 +143,8 @@ def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_to
     for j in range(m):
         fsum += f[j]
     fmean = fsum / m
-    d = np.empty(mp1)
-    s = np.zeros(m)              # nonbasic x_j = s_j f_j
+    for j in range(m):           # nonbasic x_j = s_j f_j
+        s[j] = 0.0
     gapf = 0.0
     for j in range(mp1):
         if status[j] == BASIC:
@@ -172,8 +175,8 @@ def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_to
             if g > 0.0:
                 gapf += g * f[j]
     # primal: basic values T f, T = -Binv A_N diag(s)
-    rhs = np.zeros(n)
-    rhsabs_cols = np.zeros((n, m))   # |A_ij| s_j f_j per column (for |T| f)
+    for i in range(n):
+        rhs[i] = 0.0
     for j in range(m):
         if status[j] != BASIC and s[j] != 0.0:
             v = s[j] * f[j]
@@ -182,7 +185,6 @@ def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_to
     w = 0.0
     w_basic = False
     ok = True
-    xB = np.empty(n)
     for k in range(n):
         v = 0.0
         for i in range(n):
@@ -243,23 +245,22 @@ def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_to
 
 
 @njit(cache=True, nogil=True)
-def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, max_iter, primal_tol):
+def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, max_iter, primal_tol,
+                  B, Binv, M, lo, hi, ptol, isbasic, rhs, xB, y, rho, aq, col):
     """Bounded dual simplex from a dual feasible basis; updates ``basic``/``status`` in place.
 
-    Returns (code, pivots): ``CERTIFIED`` when no basic variable violates its bounds (the
-    caller certifies), ``INFEASIBLE_SUSPECT`` when the ratio test finds no entering variable,
+    ``Binv0``: the (fresh) inverse of the starting basis matrix. Returns (code, pivots):
+    ``CERTIFIED`` when no basic variable violates its bounds with a freshly computed inverse
+    in ``Binv`` (the caller certifies), ``INFEASIBLE_SUSPECT`` when the ratio test finds no entering variable,
     ``FAILED`` on a singular basis or the iteration limit.
     """
     n, mp1 = A.shape
     m = mp1 - 1
     nv = mp1 + n
-    B = np.empty((n, n))
-    Binv = np.empty((n, n))
-    _basis_matrix(A, basic, B)
-    if not _invert(B, Binv):
-        return FAILED, 0
-    lo = np.zeros(nv)
-    hi = np.zeros(nv)
+    Binv[:, :] = Binv0
+    for j in range(nv):
+        lo[j] = 0.0
+        hi[j] = 0.0
     for j in range(m):
         lo[j] = lb[j] * f[j]
         hi[j] = ub[j] * f[j]
@@ -270,7 +271,6 @@ def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, max_iter, 
     for j in range(m):
         fsum += f[j]
         ws += wscale[j] * f[j]
-    ptol = np.empty(nv)
     for j in range(m):
         ptol[j] = 0.5 * primal_tol * fsum / m
     ptol[m] = 0.5 * primal_tol * ws
@@ -279,17 +279,13 @@ def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, max_iter, 
         for j in range(m):
             rs += Rscale[i, j] * f[j]
         ptol[mp1 + i] = 0.5 * primal_tol * rs
-    isbasic = np.zeros(nv, dtype=np.bool_)
+    for j in range(nv):
+        isbasic[j] = False
     for k in range(n):
         isbasic[basic[k]] = True
-    col = np.empty(n)
-    rhs = np.empty(n)
-    xB = np.empty(n)
-    y = np.empty(n)
-    rho = np.empty(n)
-    aq = np.empty(n)
     since = 0
-    for it in range(max_iter + 1):
+    it = 0
+    while True:
         # basic solution
         for i in range(n):
             rhs[i] = 0.0
@@ -316,7 +312,14 @@ def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, max_iter, 
                 worst = viol
                 r = k
         if r < 0:
-            return CERTIFIED, it
+            if since == 0:
+                return CERTIFIED, it
+            # optimal with an updated inverse: confirm with a fresh one
+            _basis_matrix(A, basic, B)
+            if not _invert(B, Binv, M):
+                return FAILED, it
+            since = 0
+            continue
         if it == max_iter:
             return FAILED, it
         jr = basic[r]
@@ -371,9 +374,10 @@ def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, max_iter, 
         status[q] = BASIC
         basic[r] = q
         since += 1
+        it += 1
         if since >= REFACTOR:
             _basis_matrix(A, basic, B)
-            if not _invert(B, Binv):
+            if not _invert(B, Binv, M):
                 return FAILED, it
             since = 0
         else:
@@ -393,28 +397,48 @@ def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, max_iter, 
                     g = aq[k]
                     for i in range(n):
                         Binv[k, i] -= g * Binv[r, i]
-    return FAILED, max_iter
 
 
 @njit(cache=True, nogil=True)
-def solve_rows(A, lb, ub, Acol1, wscale, Rscale, absb, F, rows, start, SB, SS, max_iter, primal_tol, dual_tol,
+def solve_rows(A, lb, ub, Acol1, wscale, Rscale, absb, F, rows, start, SB, SS, SBinv, max_iter, primal_tol, dual_tol,
                gap_rel, max_cond, want_alpha, out_w, out_code, out_basic, out_status, out_alpha, out_pivots):
-    """Dual simplex + certificate for ``F[rows[t]]`` from cached basis ``start[t]`` (``SB``/``SS``).
+    """Dual simplex + certificate for ``F[rows[t]]`` from cached basis ``start[t]`` (``SB``/``SS``,
+    inverse ``SBinv``).
 
     Writes ``out_w[t]``, ``out_code[t]`` (``CERTIFIED``/``FAILED``/``INFEASIBLE_SUSPECT``), the
     final basis (``out_basic[t]``, ``out_status[t]``), ``out_pivots[t]`` and, with ``want_alpha``,
     the activations ``out_alpha[t]``.
     """
     n, mp1 = A.shape
+    nv = mp1 + n
+    B = np.empty((n, n))
+    Binv = np.empty((n, n))
+    M = np.empty((n, n))
+    lo = np.empty(nv)
+    hi = np.empty(nv)
+    ptol = np.empty(nv)
+    isbasic = np.empty(nv, dtype=np.bool_)
+    rhs = np.empty(n)
+    xB = np.empty(n)
+    y = np.empty(n)
+    rho = np.empty(n)
+    aq = np.empty(n)
+    col = np.empty(n)
+    d = np.empty(mp1)
+    s = np.empty(mp1)
+    basic = np.empty(n, dtype=SB.dtype)
+    status = np.empty(mp1, dtype=SS.dtype)
     for t in range(rows.shape[0]):
         f = F[rows[t]]
-        basic = SB[start[t]].copy()
-        status = SS[start[t]].copy()
-        code, piv = _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, max_iter, primal_tol)
+        basic[:] = SB[start[t]]
+        status[:] = SS[start[t]]
+        code, piv = _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, SBinv[start[t]], max_iter,
+                                  primal_tol,
+                                  B, Binv, M, lo, hi, ptol, isbasic, rhs, xB, y, rho, aq, col)
         out_pivots[t] = piv
         if code == CERTIFIED:
             ok, w = _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_tol, dual_tol,
-                             gap_rel, max_cond, out_alpha[t], want_alpha)
+                             gap_rel, max_cond, out_alpha[t], want_alpha, B, Binv, y, d, s, rhs, xB)
             if ok:
                 out_w[t] = w
             else:
