@@ -122,12 +122,27 @@ SIMPLEX_MAX_ITER = 60
 SIMPLEX_TOP_MAX = 48
 
 
-#: Bases the dual simplex found are learned into the cache at most this many per block, most
-#: frequent first, plus any basis that at least ``SIMPLEX_LEARN_MIN_ROWS`` rows of the block ended in.
+#: With the dual simplex on, the double-precision ranking by all bases (stage 2) and the tie
+#: checks run only while at most this many bases are cached (they resolve the ties of structured
+#: candidates such as the 3-point grid for less than a simplex solve costs).
+SIMPLEX_STAGE2_MAX = 256
+
+
+#: The simplex rows of a block are solved in (at least 8) parts of at least this many rows.
+SIMPLEX_PART = 512
+
+
+#: Bases the dual simplex found are learned into the cache: the ``SIMPLEX_LEARN_PER_BLOCK`` most
+#: frequent of each block, and any basis that at least ``max(SIMPLEX_LEARN_MIN_ROWS, rows /
+#: SIMPLEX_LEARN_SHARE)`` of the simplex's rows of the block ended in (building a cached basis costs
+#: about as much as a hundred simplex solves, so only bases that will be hit often are worth it).
 SIMPLEX_LEARN_PER_BLOCK = 2
 
 
-SIMPLEX_LEARN_MIN_ROWS = 64
+SIMPLEX_LEARN_MIN_ROWS = 16
+
+
+SIMPLEX_LEARN_SHARE = 256
 
 
 #: The ``'zero'`` rule of :class:`~neckstrength.wrench.problem._DirectionLP`: ``w <= ZERO_REL max(1, sum f)``.
@@ -248,7 +263,7 @@ class DirectionSolver:
         self.stats = DirectionStats()
         self._D: np.ndarray | None = None    # (m, len(bases)) dual bound vectors, in self.bases order
         self._D32: np.ndarray | None = None
-        self._miss_rate = 1.0                # share of the rows of the last call that needed HiGHS
+        self._miss_rate = 1.0                # share of the rows of the last call no cached basis fitted
         self._block_miss_rate = 0.0          # ... of the last block
         # scales for the tolerances (all linear in f, so they fold into the check matrices)
         m = self.m
@@ -465,7 +480,8 @@ class DirectionSolver:
 
     def _simplex_rows(self, F, rows, start, used, w, status, alpha, src, open_):
         """Compiled dual simplex for ``rows`` warm-started from ``used[start]``; certified rows are
-        answered (``src = -3``) and their new bases learned. Returns the rows left for HiGHS."""
+        answered (``src = -3``) and their new bases learned. Returns the rows left for HiGHS and
+        the newly cached bases."""
         n, m = self.n, self.m
         R = rows.size
         SB, SS, SBinv = self._packed_bases(used)
@@ -492,12 +508,11 @@ class DirectionSolver:
         self.stats.simplex_solved += nc
         self.stats.simplex_failed += R - nc
         self.stats.simplex_pivots += int(out_piv[cert].sum())
-        if nc:
-            self._learn(out_basic[cert], out_status[cert], F[g])
-        return rows[~cert]
+        new = self._learn(out_basic[cert], out_status[cert], F[g]) if nc else []
+        return rows[~cert], new
 
     def _learn(self, basic: np.ndarray, stat: np.ndarray, F: np.ndarray) -> None:
-        """Cache the most frequent new bases among the simplex's certified final bases."""
+        """Cache the most frequent new bases among the simplex's certified final bases; returns them."""
         n = self.n
         keyarr = np.concatenate([np.sort(basic, axis=1), stat.astype(np.int64)], axis=1)
         # group equal bases by a hash of the row (a collision only changes which bases are tried;
@@ -506,8 +521,10 @@ class DirectionSolver:
         uh, first, counts = np.unique(h, return_index=True, return_counts=True)
         order = np.argsort(-counts, kind="stable")
         learned = 0
+        new = []
+        min_rows = max(SIMPLEX_LEARN_MIN_ROWS, basic.shape[0] / SIMPLEX_LEARN_SHARE)
         for u in order:
-            if learned >= SIMPLEX_LEARN_PER_BLOCK and counts[u] < SIMPLEX_LEARN_MIN_ROWS:
+            if learned >= SIMPLEX_LEARN_PER_BLOCK and counts[u] < min_rows:
                 break
             row = keyarr[first[u]]
             raw = row.tobytes()
@@ -526,8 +543,10 @@ class DirectionSolver:
                 bb = None
             if bb is not None and self._last_new:
                 bb.hits = float(counts[u])
+                new.append(bb)
                 learned += 1
                 self.stats.learned_bases += 1
+        return [bb for bb in new if bb.key in self._keys]      # not evicted meanwhile
 
     def _dual_matrix32(self) -> np.ndarray:
         D = self._dual_matrix()
@@ -587,7 +606,7 @@ class DirectionSolver:
         # blocks of growing size: the first rows discover the bases cheaply (each new basis
         # is checked against the open rows of its block), the later ones mostly hit the cache;
         # one block when the last call hardly needed HiGHS
-        calls = self.stats.highs_calls
+        calls = self.stats.highs_calls + self.stats.simplex_solved
         s0, size = 0, (N if self.bases and self._miss_rate < WARM_MISS_RATE else BLOCK_START)
         while s0 < N:
             e = min(N, s0 + size)
@@ -599,7 +618,7 @@ class DirectionSolver:
             self._block_miss_rate = (self.stats.highs_calls - c0) / (e - s0)
             s0 = e
             size *= 2
-        self._miss_rate = (self.stats.highs_calls - calls) / N
+        self._miss_rate = (self.stats.highs_calls + self.stats.simplex_solved - calls) / N
         return w, status, alpha
 
     def _solve_block(self, F, F32, w, status, alpha, fmax):
@@ -640,13 +659,14 @@ class DirectionSolver:
             hits = np.cumsum([bb.hits for bb in used])
             k = int(np.searchsorted(hits, TOP_SHARE * hits[-1])) + 1
             k = min(nb, max(k, TOP_MIN))
+            stage2 = not simplex or nb <= SIMPLEX_STAGE2_MAX
             if simplex:
                 k = min(k, SIMPLEX_TOP_MAX)
             label = np.full(N, -1, dtype=np.int16 if nb < 32768 else np.int64)
             # stage 1 in single precision over the most-hit bases (it only picks the basis to
             # check; a wrong pick in a near-tie fails the exact check), stage 2 in double
             # precision over all bases for the rows that failed
-            for kk, single in ((k, True),) if simplex else ((k, True), (nb, False)):
+            for kk, single in ((k, True), (nb, False)) if stage2 else ((k, True),):
                 if rem.size == 0:
                     break
                 Dk = self._dual_matrix32()[:, :kk] if single else D
@@ -665,7 +685,7 @@ class DirectionSolver:
                 rem = rem[open_[rem]]
             if rem.size:
                 ubest[rem] = np.einsum("ij,ji->i", F[rem], D[:, label[rem]])
-            if rem.size and nb > 1 and not simplex:
+            if rem.size and nb > 1 and stage2:
                 # ties: any other basis whose bound is (numerically) as small is a candidate
                 Fr = F[rem]
                 thr = ubest[rem] + TIE_REL * (np.abs(ubest[rem]) + floor)
@@ -700,8 +720,35 @@ class DirectionSolver:
                     alpha[g] = np.nan
                 rem = rem[~inf]
         if rem.size and simplex and nb:
-            # the compiled dual simplex, warm-started from each row's best-ranked basis
-            rem = self._simplex_rows(F, rem, label[rem], used[:nb], w, status, alpha, src, open_)
+            # the compiled dual simplex, warm-started from each row's best-ranked basis, in parts:
+            # the bases learned from one part are tried on the open rows of the next ones
+            left = []
+            step = max(SIMPLEX_PART, -(-rem.size // 8))
+            pos = 0
+            while pos < rem.size:
+                part = rem[pos:pos + step]
+                pos += step
+                part = part[open_[part]]
+                if part.size == 0:
+                    continue
+                failed, new = self._simplex_rows(F, part, label[part], used[:nb], w, status, alpha, src, open_)
+                left.append(failed)
+                rest = rem[pos:]
+                rest = rest[open_[rest]]
+                if new and rest.size:
+                    # each open row tries the new basis with the smallest dual bound, if that
+                    # bound does not exceed its best cached one
+                    i0 = len(used)
+                    used.extend(new)
+                    V = F[rest] @ np.array([bb.dvec for bb in new]).T
+                    lab = V.argmin(axis=1)
+                    u = V[np.arange(rest.size), lab]
+                    thr = ubest[rest]
+                    cand = u <= thr + TIE_REL * (np.abs(thr) + floor)
+                    ubest[rest] = np.minimum(thr, u)
+                    for bi in np.unique(lab[cand]):
+                        self.stats.cache_hits += accept(i0 + int(bi), rest[cand & (lab == bi)])
+            rem = np.concatenate(left) if left else rem[:0]
         # HiGHS for the misses; each new basis / certificate is checked against the open rows.
         # Lean mode, when a big cache still misses most rows (many muscles, scattered candidates):
         # only every LEAN_EVERY-th HiGHS basis is read and cached, the rest cost one HiGHS call each
