@@ -229,6 +229,7 @@ class DirectionStats:
     simplex_failed: int = 0  # ... sent on to HiGHS (iteration limit, failed certificate, infeasible)
     simplex_pivots: int = 0  # pivots of the certified dual simplex solves
     learned_bases: int = 0   # bases the dual simplex found that were added to the cache
+    bootstrap_calls: int = 0  # HiGHS calls (in highs_calls) that only found a first basis for the simplex
 
 
 class DirectionSolver:
@@ -635,6 +636,7 @@ class DirectionSolver:
             # bootstrap: the dual simplex needs one dual feasible basis; HiGHS finds it (the rows
             # themselves are answered below)
             for i in range(min(N, 4)):
+                self.stats.bootstrap_calls += 1
                 self._highs(F[i])
                 if self.bases:
                     break
@@ -851,10 +853,12 @@ class BasisCache:
     Keep one across calls (e.g. the iterations of an ABC estimator): candidate
     strength vectors near earlier ones are then answered from cached bases
     without HiGHS. ``max_bases``: bases kept per key (least recently hit
-    dropped first); ``max_entries``: keys kept (oldest dropped first).
+    dropped first); ``max_entries``: keys kept (oldest dropped first); ``simplex``: solve cache
+    misses with the compiled dual simplex (default; False: HiGHS for every miss, as before).
     """
 
-    def __init__(self, max_bases: int = 2048, max_entries: int = 4096, decay: float = 0.5):
+    def __init__(self, max_bases: int = 2048, max_entries: int = 4096, decay: float = 0.5, simplex: bool = True):
+        self.simplex = simplex
         self.max_bases = max_bases
         self.max_entries = max_entries
         self.decay = decay
@@ -873,7 +877,7 @@ class BasisCache:
         key = (self._rkey(R), b.tobytes(), lb.tobytes(), ub.tobytes())
         e = self._entries.get(key)
         if e is None:
-            e = DirectionSolver(R, b, lb, ub, self.max_bases, self.decay)
+            e = DirectionSolver(R, b, lb, ub, self.max_bases, self.decay, self.simplex)
             self._entries[key] = e
             if len(self._entries) > self.max_entries:
                 self._entries.pop(next(iter(self._entries)))
