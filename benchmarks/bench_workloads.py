@@ -109,12 +109,14 @@ def main(argv=None) -> int:
         w_ref = np.empty(S)
         st_ref = np.empty(S, dtype=np.int8)
         t0 = time.perf_counter()
+        c0 = time.process_time()
         for j in range(S):
             r = max_wrench(model.moment_arms, model.JT, F[si[j]], U[sk[j]])
             w_ref[j], st_ref[j] = r.w, codes[r.status]
         rate_ref = S / (time.perf_counter() - t0)
+        cpu_ref = S / (time.process_time() - c0)
         print(f"\n[{kind}] {N} candidates x {K} = {N * K} LPs; reference max_wrench {rate_ref:,.0f} LPs/s "
-              f"({S} LPs)")
+              f"({cpu_ref:,.0f} LPs per CPU-second; {S} LPs; load average {os.getloadavg()[0]:.2f})")
         for nt in [int(x) for x in args.threads.split(",")]:
             cache = BasisCache()
             t0 = time.perf_counter()
@@ -127,7 +129,8 @@ def main(argv=None) -> int:
             mis = int(np.sum(status[si, sk] != st_ref))
             ok &= err <= 1e-9 and mis == 0
             s = cache.stats()
-            print(f"  n_threads={nt}: {t:.2f} s (CPU {cpu:.2f} s) = {rate:,.0f} LPs/s = {rate / rate_ref:,.0f}x; "
+            print(f"  n_threads={nt}: {t:.2f} s (CPU {cpu:.2f} s) = {rate:,.0f} LPs/s = {rate / rate_ref:,.0f}x "
+                  f"(per CPU-second {N * K / cpu / cpu_ref:,.0f}x); "
                   f"cache {s['cache_hits'] / (N * K):.1%}, simplex {s['simplex_solved'] / (N * K):.1%} "
                   f"({s['simplex_pivots'] / max(s['simplex_solved'], 1):.1f} pivots), HiGHS {s['highs_calls']} "
                   f"({s['highs_calls'] / (N * K):.1e}; simplex failures {s['simplex_failed']}), bases {s['bases']} "

@@ -77,12 +77,12 @@ def _invert(B, out, M):
 
 
 @njit(cache=True, nogil=True)
-def _column(A, j, out):
-    """Column ``j`` of ``[A, -I]``."""
-    n, mp1 = A.shape
+def _column(AT, j, out):
+    """Column ``j`` of ``[A, -I]`` (``AT = A.T``)."""
+    mp1, n = AT.shape
     if j < mp1:
         for i in range(n):
-            out[i] = A[i, j]
+            out[i] = AT[j, i]
     else:
         for i in range(n):
             out[i] = 0.0
@@ -90,13 +90,13 @@ def _column(A, j, out):
 
 
 @njit(cache=True, nogil=True)
-def _basis_matrix(A, basic, B):
-    n, mp1 = A.shape
+def _basis_matrix(AT, basic, B):
+    mp1, n = AT.shape
     for k in range(n):
         j = basic[k]
         if j < mp1:
             for i in range(n):
-                B[i, k] = A[i, j]
+                B[i, k] = AT[j, i]
         else:
             for i in range(n):
                 B[i, k] = 0.0
@@ -104,7 +104,7 @@ def _basis_matrix(A, basic, B):
 
 
 @njit(cache=True, nogil=True)
-def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_tol, dual_tol, gap_rel,
+def _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_tol, dual_tol, gap_rel,
              max_cond, alpha_out, want_alpha, B, Binv, y, d, s, rhs, xB):
     """Optimality certificate of a basis for ``f``, from scratch. Returns (ok, w).
 
@@ -114,9 +114,9 @@ def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_to
     cached checks (primal feasibility with the tolerance relative to the terms of ``T f``, the
     duality-gap rule), evaluated directly for this ``f``.
     """
-    n, mp1 = A.shape
+    mp1, n = AT.shape
     m = mp1 - 1
-    _basis_matrix(A, basic, B)
+    _basis_matrix(AT, basic, B)
     nB = 0.0
     nI = 0.0
     for k in range(n):
@@ -152,7 +152,7 @@ def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_to
             continue
         t = 0.0
         for i in range(n):
-            t += y[i] * A[i, j]
+            t += y[i] * AT[j, i]
         dj = (1.0 if j == m else 0.0) - t
         d[j] = dj
         tol = dual_tol * (ymax * Acol1[j] + (1.0 if j == m else 0.0))
@@ -181,7 +181,7 @@ def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_to
         if status[j] != BASIC and s[j] != 0.0:
             v = s[j] * f[j]
             for i in range(n):
-                rhs[i] -= A[i, j] * v
+                rhs[i] -= AT[j, i] * v
     w = 0.0
     w_basic = False
     ok = True
@@ -196,7 +196,7 @@ def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_to
             if status[j] != BASIC and s[j] != 0.0:
                 t = 0.0
                 for i in range(n):
-                    t += Binv[k, i] * A[i, j]
+                    t += Binv[k, i] * AT[j, i]
                 tf += abs(t) * s[j] * f[j]
         jb = basic[k]
         if jb < m:
@@ -245,7 +245,7 @@ def _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_to
 
 
 @njit(cache=True, nogil=True)
-def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, max_iter, primal_tol,
+def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, max_iter, primal_tol,
                   B, Binv, M, lo, hi, ptol, isbasic, rhs, xB, y, rho, aq, col):
     """Bounded dual simplex from a dual feasible basis; updates ``basic``/``status`` in place.
 
@@ -254,7 +254,7 @@ def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, max
     in ``Binv`` (the caller certifies), ``INFEASIBLE_SUSPECT`` when the ratio test finds no entering variable,
     ``FAILED`` on a singular basis or the iteration limit.
     """
-    n, mp1 = A.shape
+    mp1, n = AT.shape
     m = mp1 - 1
     nv = mp1 + n
     Binv[:, :] = Binv0
@@ -294,7 +294,7 @@ def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, max
                 v = hi[j] if status[j] == UPPER else lo[j]
                 if v != 0.0:
                     for i in range(n):
-                        rhs[i] -= A[i, j] * v
+                        rhs[i] -= AT[j, i] * v
         r = -1
         worst = 0.0
         for k in range(n):
@@ -315,7 +315,7 @@ def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, max
             if since == 0:
                 return CERTIFIED, it
             # optimal with an updated inverse: confirm with a fresh one
-            _basis_matrix(A, basic, B)
+            _basis_matrix(AT, basic, B)
             if not _invert(B, Binv, M):
                 return FAILED, it
             since = 0
@@ -345,8 +345,8 @@ def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, max
             a = 0.0
             t = 0.0
             for i in range(n):
-                a += rho[i] * A[i, j]
-                t += y[i] * A[i, j]
+                a += rho[i] * AT[j, i]
+                t += y[i] * AT[j, i]
             at = sgn * a
             if abs(at) <= 1e-9 * rmax * Acol1[j]:
                 continue
@@ -376,12 +376,12 @@ def _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, max
         since += 1
         it += 1
         if since >= REFACTOR:
-            _basis_matrix(A, basic, B)
+            _basis_matrix(AT, basic, B)
             if not _invert(B, Binv, M):
                 return FAILED, it
             since = 0
         else:
-            _column(A, q, col)
+            _column(AT, q, col)
             for k in range(n):
                 v = 0.0
                 for i in range(n):
@@ -411,6 +411,7 @@ def solve_rows(A, lb, ub, Acol1, wscale, Rscale, absb, F, rows, start, SB, SS, S
     """
     n, mp1 = A.shape
     nv = mp1 + n
+    AT = np.ascontiguousarray(A.T)      # columns of A contiguous for the inner loops
     B = np.empty((n, n))
     Binv = np.empty((n, n))
     M = np.empty((n, n))
@@ -432,12 +433,12 @@ def solve_rows(A, lb, ub, Acol1, wscale, Rscale, absb, F, rows, start, SB, SS, S
         f = F[rows[t]]
         basic[:] = SB[start[t]]
         status[:] = SS[start[t]]
-        code, piv = _dual_simplex(A, lb, ub, Acol1, wscale, Rscale, f, basic, status, SBinv[start[t]], max_iter,
+        code, piv = _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, SBinv[start[t]], max_iter,
                                   primal_tol,
                                   B, Binv, M, lo, hi, ptol, isbasic, rhs, xB, y, rho, aq, col)
         out_pivots[t] = piv
         if code == CERTIFIED:
-            ok, w = _certify(A, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_tol, dual_tol,
+            ok, w = _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_tol, dual_tol,
                              gap_rel, max_cond, out_alpha[t], want_alpha, B, Binv, y, d, s, rhs, xB)
             if ok:
                 out_w[t] = w
