@@ -19,13 +19,18 @@ basis, primal infeasibility, a failed certificate) are reported as failed and go
 
 Compiled with numba (``cache=True``: the machine code is stored next to this file, so each
 process after the first loads it instead of compiling; ``nogil=True``: directions run in
-parallel threads).
+parallel threads; ``fastmath`` limited to reassociation and fused multiply-add, see ``_FM``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+#: Floating-point flags: reassociation (vectorised dot products) and fused multiply-add only; no
+#: assumption about infinities or NaNs (``w`` has an infinite upper bound). The certificate's
+#: tolerances are orders of magnitude above the rounding differences this allows.
+_FM = {"reassoc", "contract", "nsz"}
 
 #: Rebuild the basis inverse from scratch after this many product-form updates.
 REFACTOR = 16
@@ -37,7 +42,7 @@ CERTIFIED, FAILED, INFEASIBLE_SUSPECT = 0, 1, 2
 LOWER, BASIC, UPPER = 0, 1, 2
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=_FM)
 def _invert(B, out, M):
     """Gauss-Jordan inverse with partial pivoting (``M``: workspace); False if (numerically) singular."""
     n = B.shape[0]
@@ -76,7 +81,7 @@ def _invert(B, out, M):
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=_FM)
 def _column(AT, j, out):
     """Column ``j`` of ``[A, -I]`` (``AT = A.T``)."""
     mp1, n = AT.shape
@@ -89,7 +94,7 @@ def _column(AT, j, out):
         out[j - mp1] = -1.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=_FM)
 def _basis_matrix(AT, basic, B):
     mp1, n = AT.shape
     for k in range(n):
@@ -103,7 +108,7 @@ def _basis_matrix(AT, basic, B):
             B[j - mp1, k] = -1.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=_FM)
 def _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_tol, dual_tol, gap_rel,
              max_cond, alpha_out, want_alpha, B, Binv, y, d, s, rhs, xB):
     """Optimality certificate of a basis for ``f``, from scratch. Returns (ok, w).
@@ -244,7 +249,7 @@ def _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_t
     return True, w
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=_FM)
 def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, max_iter, primal_tol,
                   B, Binv, M, lo, hi, ptol, isbasic, rhs, xB, y, rho, aq, col):
     """Bounded dual simplex from a dual feasible basis; updates ``basic``/``status`` in place.
@@ -399,7 +404,7 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
                         Binv[k, i] -= g * Binv[r, i]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=_FM)
 def solve_rows(A, lb, ub, Acol1, wscale, Rscale, absb, F, rows, start, SB, SS, SBinv, max_iter, primal_tol, dual_tol,
                gap_rel, max_cond, want_alpha, out_w, out_code, out_basic, out_status, out_alpha, out_pivots):
     """Dual simplex + certificate for ``F[rows[t]]`` from cached basis ``start[t]`` (``SB``/``SS``,
