@@ -25,6 +25,12 @@ is verified (dual feasibility recomputed here) and added to the cache.
 Infeasible activation lower bounds are cached in the same way as Farkas
 certificates (linear in ``f`` too).
 
+Candidates that no cached basis fits are first given to a compiled dual
+simplex (:mod:`neckstrength.wrench.simplex`), warm-started from the basis the
+ranking chose (dual feasible for every ``f``); its final basis is certified
+from scratch with the same tests before the row is answered, and frequent new
+bases are learned into the cache. HiGHS remains the fallback.
+
 Public API: :func:`max_wrench_batched` (same return convention as
 :func:`neckstrength.wrench.highs.max_wrench_batch`), :func:`max_wrench_batched_arrays`
 (plain arrays), :class:`BasisCache` (keep it across calls with nearby
