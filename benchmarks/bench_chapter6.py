@@ -27,7 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_workloads import load  # noqa: E402
+from bench_workloads import load
 
 
 def main(argv=None) -> int:

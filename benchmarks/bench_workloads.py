@@ -35,7 +35,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_maxwrench import grid_factors, pair_index  # noqa: E402
+from bench_maxwrench import grid_factors, pair_index
 
 
 def load(model_name: str, config: str):
@@ -53,7 +53,7 @@ def load(model_name: str, config: str):
     except ImportError:
         full = load_full_model(cfg["data"]["model_dir"], cfg["data"]["thesis_dir"])
         model = named_model(full, model_name, cfg["data"]["thesis_dir"])
-    dirs, U = model_directions(model, build_directions(cfg))
+    _, U = model_directions(model, build_directions(cfg))
     return model, np.asarray(U, float)
 
 

@@ -525,7 +525,7 @@ class DirectionSolver:
         # group equal bases by a hash of the row (a collision only changes which bases are tried;
         # every basis is built from an actual row and verified)
         h = keyarr @ _HASH_WEIGHTS[:keyarr.shape[1]]
-        uh, first, counts = np.unique(h, return_index=True, return_counts=True)
+        _, first, counts = np.unique(h, return_index=True, return_counts=True)
         order = np.argsort(-counts, kind="stable")
         learned = 0
         new = []

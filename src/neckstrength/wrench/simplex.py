@@ -365,8 +365,7 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
                     continue
                 ratio = max(dj, 0.0) / -at
             if ratio < best * (1.0 - 1e-12) or (ratio <= best * (1.0 + 1e-12) and abs(at) > bestpiv):
-                if ratio < best:
-                    best = ratio
+                best = min(best, ratio)
                 q = j
                 bestpiv = abs(at)
         if q < 0:
