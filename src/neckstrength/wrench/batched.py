@@ -25,6 +25,12 @@ is verified (dual feasibility recomputed here) and added to the cache.
 Infeasible activation lower bounds are cached in the same way as Farkas
 certificates (linear in ``f`` too).
 
+Candidates that no cached basis fits are first given to a compiled dual
+simplex (:mod:`neckstrength.wrench.simplex`), warm-started from the basis the
+ranking chose (dual feasible for every ``f``); its final basis is certified
+from scratch with the same tests before the row is answered, and frequent new
+bases are learned into the cache. HiGHS remains the fallback.
+
 Public API: :func:`max_wrench_batched` (same return convention as
 :func:`neckstrength.wrench.highs.max_wrench_batch`), :func:`max_wrench_batched_arrays`
 (plain arrays), :class:`BasisCache` (keep it across calls with nearby
@@ -44,6 +50,11 @@ import numpy as np
 
 from neckstrength.model.reduction import ReducedModel
 from neckstrength.wrench.problem import STATUS_CODES, _bounds, _DirectionLP
+
+try:  # the compiled dual simplex (numba); without it every cache miss goes to HiGHS
+    from neckstrength.wrench import simplex as _simplex
+except ImportError:  # pragma: no cover - numba is a dependency
+    _simplex = None
 
 _CODE = {v: k for k, v in STATUS_CODES.items()}
 
@@ -107,6 +118,39 @@ TOP_SHARE = 0.95
 TOP_MIN = 8
 
 
+#: Dual simplex (:mod:`neckstrength.wrench.simplex`) on the rows no cached basis fits: at most
+#: this many pivots per row before the row goes to HiGHS.
+SIMPLEX_MAX_ITER = 60
+
+
+#: With the dual simplex on, stage 1 ranks by at most this many most-hit bases (a warm start from
+#: a slightly worse basis costs a pivot or two, ranking by every cached basis costs more).
+SIMPLEX_TOP_MAX = 48
+
+
+#: With the dual simplex on, the double-precision ranking by all bases (stage 2) and the tie
+#: checks run only while at most this many bases are cached (they resolve the ties of structured
+#: candidates such as the 3-point grid for less than a simplex solve costs).
+SIMPLEX_STAGE2_MAX = 256
+
+
+#: The simplex rows of a block are solved in (at least 8) parts of at least this many rows.
+SIMPLEX_PART = 512
+
+
+#: Bases the dual simplex found are learned into the cache: the ``SIMPLEX_LEARN_PER_BLOCK`` most
+#: frequent of each block, and any basis that at least ``max(SIMPLEX_LEARN_MIN_ROWS, rows /
+#: SIMPLEX_LEARN_SHARE)`` of the simplex's rows of the block ended in (building a cached basis costs
+#: about as much as a hundred simplex solves, so only bases that will be hit often are worth it).
+SIMPLEX_LEARN_PER_BLOCK = 2
+
+
+SIMPLEX_LEARN_MIN_ROWS = 16
+
+
+SIMPLEX_LEARN_SHARE = 256
+
+
 #: The ``'zero'`` rule of :class:`~neckstrength.wrench.problem._DirectionLP`: ``w <= ZERO_REL max(1, sum f)``.
 ZERO_REL = 1e-12
 
@@ -122,6 +166,9 @@ _UPPER = int(highspy.HighsBasisStatus.kUpper)
 
 #: HiGHS is called from one thread at a time (``n_threads > 1`` parallelises the matrix work only).
 _HIGHS_LOCK = threading.Lock()
+
+
+_HASH_WEIGHTS = np.random.default_rng(20261123).integers(1, 2**62, size=4096, dtype=np.int64) | 1
 
 
 _BLAS: dict = {}
@@ -155,7 +202,7 @@ class _Basis:
     the basis is optimal. ``P`` (m x m): ``x = P @ f`` (forces), built lazily.
     """
 
-    __slots__ = ("key", "CW", "q", "w_basic", "dvec", "status", "basic", "T", "P", "hits", "total")
+    __slots__ = ("key", "CW", "q", "w_basic", "dvec", "status", "basic", "T", "P", "hits", "total", "Binv")
 
     def __init__(self, key, CW, q, w_basic, dvec, status, basic, T):
         self.key = key
@@ -184,6 +231,11 @@ class DirectionStats:
     bases: int = 0           # bases currently cached
     rejected_bases: int = 0  # HiGHS bases not cached (not verifiably dual feasible)
     evicted_bases: int = 0
+    simplex_solved: int = 0  # answered by the compiled dual simplex (certified basis)
+    simplex_failed: int = 0  # ... sent on to HiGHS (iteration limit, failed certificate, infeasible)
+    simplex_pivots: int = 0  # pivots of the certified dual simplex solves
+    learned_bases: int = 0   # bases the dual simplex found that were added to the cache
+    bootstrap_calls: int = 0  # HiGHS calls (in highs_calls) that only found a first basis for the simplex
 
 
 class DirectionSolver:
@@ -196,7 +248,7 @@ class DirectionSolver:
     """
 
     def __init__(self, R: np.ndarray, b: np.ndarray, lb=None, ub=None,
-                 max_bases: int = 2048, decay: float = 0.5):
+                 max_bases: int = 2048, decay: float = 0.5, simplex: bool = True):
         R = np.asarray(R, float)
         b = np.asarray(b, float)
         if R.ndim != 2 or b.shape != (R.shape[0],):
@@ -218,7 +270,7 @@ class DirectionSolver:
         self.stats = DirectionStats()
         self._D: np.ndarray | None = None    # (m, len(bases)) dual bound vectors, in self.bases order
         self._D32: np.ndarray | None = None
-        self._miss_rate = 1.0                # share of the rows of the last call that needed HiGHS
+        self._miss_rate = 1.0                # share of the rows of the last call no cached basis fitted
         self._block_miss_rate = 0.0          # ... of the last block
         # scales for the tolerances (all linear in f, so they fold into the check matrices)
         m = self.m
@@ -227,6 +279,11 @@ class DirectionSolver:
         self._wscale = (np.max(np.abs(R), axis=0) * self.ub / bmax / m) if self.n else np.zeros(m)
         self._Rscale = np.abs(R) * self.ub[None, :]                # torque scale of each row
         self._Acol1 = np.abs(A).sum(axis=0)
+        self._absb = np.abs(b)
+        # compiled dual simplex for the rows no cached basis fits (``simplex=False``: HiGHS only)
+        self.simplex = bool(simplex) and _simplex is not None
+        self._packed = None                  # (SB, SS): basic sets and statuses of self.bases
+        self._learned_raw: set[bytes] = set()
 
     # ------------------------------------------------------------------ HiGHS side
     @property
@@ -286,6 +343,12 @@ class DirectionSolver:
         hi = np.r_[self.ub * f, np.inf]
         col[np.abs(xv - hi) < np.abs(xv - lo)] = _UPPER
         col[bcols] = _BASIC
+        return self._make_basis(bcols, brows, col, f)
+
+    def _make_basis(self, bcols: np.ndarray, brows: np.ndarray, col: np.ndarray, f: np.ndarray):
+        """Verify a basis (sorted basic columns and row logicals, per-column bound status ``col``)
+        and cache it as linear maps; returns the _Basis (or the cached equal one) or None."""
+        n, m = self.n, self.m
         A = self.A
         nb = len(bcols)
         B = np.zeros((n, n))
@@ -322,8 +385,10 @@ class DirectionSolver:
             return None
         key = (bcols.tobytes(), brows.tobytes(), col.astype(np.int8).tobytes())
         if key in self._keys:
+            self._last_new = False
             self.stats.highs_known += 1
             return self._keys[key]
+        self._last_new = True
         # basic solution as a linear map of f: nonbasic x_j = s_j f_j, basic variables = T f
         s = np.where(col[:m] == _UPPER, self.ub, self.lb)
         s[col[:m] == _BASIC] = 0.0
@@ -361,6 +426,7 @@ class DirectionSolver:
         CW[:q] = C
         CW[q] = tw
         basis = _Basis(key, CW, q, w_basic, dvec, col, np.r_[bcols, m + 1 + brows], T)
+        basis.Binv = Binv                               # columns in the order of basis.basic
         self._keys[key] = basis
         self.bases.append(basis)
         self._D = None
@@ -407,7 +473,87 @@ class DirectionSolver:
             self._D = (np.ascontiguousarray(np.array([bb.dvec for bb in self.bases]).T) if self.bases
                        else np.zeros((self.m, 0)))
             self._D32 = None
+            self._packed = None
         return self._D
+
+    def _packed_bases(self, used: list[_Basis]):
+        """Basic sets (nb x n, int64) and statuses (nb x (m+1), int8) of ``used`` for the simplex."""
+        if self._packed is None or self._packed[0].shape[0] != len(used):
+            SB = np.array([bb.basic for bb in used], dtype=np.int64).reshape(len(used), self.n)
+            SS = np.array([bb.status for bb in used], dtype=np.int8).reshape(len(used), self.m + 1)
+            SBinv = np.array([bb.Binv for bb in used], dtype=float).reshape(len(used), self.n, self.n)
+            self._packed = (SB, SS, SBinv)
+        return self._packed
+
+    def _simplex_rows(self, F, rows, start, used, w, status, alpha, src, open_):
+        """Compiled dual simplex for ``rows`` warm-started from ``used[start]``; certified rows are
+        answered (``src = -3``) and their new bases learned. Returns the rows left for HiGHS and
+        the newly cached bases."""
+        n, m = self.n, self.m
+        R = rows.size
+        SB, SS, SBinv = self._packed_bases(used)
+        want = alpha is not None
+        out_w = np.zeros(R)
+        out_code = np.empty(R, dtype=np.int8)
+        out_basic = np.empty((R, n), dtype=np.int64)
+        out_status = np.empty((R, m + 1), dtype=np.int8)
+        out_alpha = np.empty((R if want else 1, m))
+        out_piv = np.empty(R, dtype=np.int64)
+        _simplex.solve_rows(self.A, self.lb, self.ub, self._Acol1, self._wscale, self._Rscale, self._absb, F,
+                            rows.astype(np.int64), start.astype(np.int64), SB, SS, SBinv, SIMPLEX_MAX_ITER, PRIMAL_TOL,
+                            DUAL_TOL, GAP_REL, MAX_COND, want, out_w, out_code, out_basic, out_status,
+                            out_alpha if want else np.empty((R, m)), out_piv)
+        cert = out_code == _simplex.CERTIFIED
+        g = rows[cert]
+        w[g] = out_w[cert]
+        status[g] = _OPT
+        src[g] = -3
+        open_[g] = False
+        if want:
+            alpha[g] = out_alpha[cert]
+        nc = int(cert.sum())
+        self.stats.simplex_solved += nc
+        self.stats.simplex_failed += R - nc
+        self.stats.simplex_pivots += int(out_piv[cert].sum())
+        new = self._learn(out_basic[cert], out_status[cert], F[g]) if nc else []
+        return rows[~cert], new
+
+    def _learn(self, basic: np.ndarray, stat: np.ndarray, F: np.ndarray) -> None:
+        """Cache the most frequent new bases among the simplex's certified final bases; returns them."""
+        n = self.n
+        keyarr = np.concatenate([np.sort(basic, axis=1), stat.astype(np.int64)], axis=1)
+        # group equal bases by a hash of the row (a collision only changes which bases are tried;
+        # every basis is built from an actual row and verified)
+        h = keyarr @ _HASH_WEIGHTS[:keyarr.shape[1]]
+        _, first, counts = np.unique(h, return_index=True, return_counts=True)
+        order = np.argsort(-counts, kind="stable")
+        learned = 0
+        new = []
+        min_rows = max(SIMPLEX_LEARN_MIN_ROWS, basic.shape[0] / SIMPLEX_LEARN_SHARE)
+        for u in order:
+            if learned >= SIMPLEX_LEARN_PER_BLOCK and counts[u] < min_rows:
+                break
+            row = keyarr[first[u]]
+            raw = row.tobytes()
+            if raw in self._learned_raw:
+                continue
+            self._learned_raw.add(raw)
+            if len(self._learned_raw) > 8 * self.max_bases:
+                self._learned_raw.clear()
+            bset = row[:n]
+            bcols = bset[bset <= self.m]
+            brows = bset[bset > self.m] - (self.m + 1)
+            col = row[n:].astype(np.int64)
+            try:
+                bb = self._make_basis(bcols, brows, col, F[first[u]])
+            except Exception:  # noqa: BLE001 - caching is an optimisation
+                bb = None
+            if bb is not None and self._last_new:
+                bb.hits = float(counts[u])
+                new.append(bb)
+                learned += 1
+                self.stats.learned_bases += 1
+        return [bb for bb in new if bb.key in self._keys]      # not evicted meanwhile
 
     def _dual_matrix32(self) -> np.ndarray:
         D = self._dual_matrix()
@@ -467,7 +613,7 @@ class DirectionSolver:
         # blocks of growing size: the first rows discover the bases cheaply (each new basis
         # is checked against the open rows of its block), the later ones mostly hit the cache;
         # one block when the last call hardly needed HiGHS
-        calls = self.stats.highs_calls
+        calls = self.stats.highs_calls + self.stats.simplex_solved
         s0, size = 0, (N if self.bases and self._miss_rate < WARM_MISS_RATE else BLOCK_START)
         while s0 < N:
             e = min(N, s0 + size)
@@ -479,7 +625,7 @@ class DirectionSolver:
             self._block_miss_rate = (self.stats.highs_calls - c0) / (e - s0)
             s0 = e
             size *= 2
-        self._miss_rate = (self.stats.highs_calls - calls) / N
+        self._miss_rate = (self.stats.highs_calls + self.stats.simplex_solved - calls) / N
         return w, status, alpha
 
     def _solve_block(self, F, F32, w, status, alpha, fmax):
@@ -491,6 +637,16 @@ class DirectionSolver:
         open_ = np.ones(N, bool)
         ubest = np.full(N, np.inf)                # best (smallest) cached dual bound per open row
         floor = ZERO_REL * max(1.0, fmax * m)     # >= the 'zero' threshold of every row
+        simplex = self.simplex
+        if simplex and not self.bases:
+            # bootstrap: the dual simplex needs one dual feasible basis; HiGHS finds it (the rows
+            # themselves are answered below)
+            for i in range(min(N, 4)):
+                self.stats.bootstrap_calls += 1
+                self._highs(F[i])
+                if self.bases:
+                    break
+            used = list(self.bases)
 
         def accept(bb_index: int, rows: np.ndarray) -> int:
             bb = used[bb_index]
@@ -511,11 +667,14 @@ class DirectionSolver:
             hits = np.cumsum([bb.hits for bb in used])
             k = int(np.searchsorted(hits, TOP_SHARE * hits[-1])) + 1
             k = min(nb, max(k, TOP_MIN))
+            stage2 = not simplex or nb <= SIMPLEX_STAGE2_MAX
+            if simplex:
+                k = min(k, SIMPLEX_TOP_MAX)
             label = np.full(N, -1, dtype=np.int16 if nb < 32768 else np.int64)
             # stage 1 in single precision over the most-hit bases (it only picks the basis to
             # check; a wrong pick in a near-tie fails the exact check), stage 2 in double
             # precision over all bases for the rows that failed
-            for kk, single in ((k, True), (nb, False)):
+            for kk, single in ((k, True), (nb, False)) if stage2 else ((k, True),):
                 if rem.size == 0:
                     break
                 Dk = self._dual_matrix32()[:, :kk] if single else D
@@ -534,7 +693,7 @@ class DirectionSolver:
                 rem = rem[open_[rem]]
             if rem.size:
                 ubest[rem] = np.einsum("ij,ji->i", F[rem], D[:, label[rem]])
-            if rem.size and nb > 1:
+            if rem.size and nb > 1 and stage2:
                 # ties: any other basis whose bound is (numerically) as small is a candidate
                 Fr = F[rem]
                 thr = ubest[rem] + TIE_REL * (np.abs(ubest[rem]) + floor)
@@ -552,7 +711,7 @@ class DirectionSolver:
             # misses in order of their best cached basis: consecutive HiGHS solves are then
             # near each other, and each warm start is close to the next optimum
             rem = rem[np.argsort(label[rem], kind="stable")]
-        self.stats.cache_hits += int(N - rem.size)
+        self.stats.cache_hits += int(np.count_nonzero(src >= 0))
         # cached Farkas certificates
         if rem.size and self.farkas:
             Fr = F[rem]
@@ -568,6 +727,36 @@ class DirectionSolver:
                 if return_alpha:
                     alpha[g] = np.nan
                 rem = rem[~inf]
+        if rem.size and simplex and nb:
+            # the compiled dual simplex, warm-started from each row's best-ranked basis, in parts:
+            # the bases learned from one part are tried on the open rows of the next ones
+            left = []
+            step = max(SIMPLEX_PART, -(-rem.size // 8))
+            pos = 0
+            while pos < rem.size:
+                part = rem[pos:pos + step]
+                pos += step
+                part = part[open_[part]]
+                if part.size == 0:
+                    continue
+                failed, new = self._simplex_rows(F, part, label[part], used[:nb], w, status, alpha, src, open_)
+                left.append(failed)
+                rest = rem[pos:]
+                rest = rest[open_[rest]]
+                if new and rest.size:
+                    # each open row tries the new basis with the smallest dual bound, if that
+                    # bound does not exceed its best cached one
+                    i0 = len(used)
+                    used.extend(new)
+                    V = F[rest] @ np.array([bb.dvec for bb in new]).T
+                    lab = V.argmin(axis=1)
+                    u = V[np.arange(rest.size), lab]
+                    thr = ubest[rest]
+                    cand = u <= thr + TIE_REL * (np.abs(thr) + floor)
+                    ubest[rest] = np.minimum(thr, u)
+                    for bi in np.unique(lab[cand]):
+                        self.stats.cache_hits += accept(i0 + int(bi), rest[cand & (lab == bi)])
+            rem = np.concatenate(left) if left else rem[:0]
         # HiGHS for the misses; each new basis / certificate is checked against the open rows.
         # Lean mode, when a big cache still misses most rows (many muscles, scattered candidates):
         # only every LEAN_EVERY-th HiGHS basis is read and cached, the rest cost one HiGHS call each
@@ -621,15 +810,15 @@ class DirectionSolver:
                         alpha[g] = np.nan
             rem = rest[open_[rest]]
             pos = 0
-        # statuses of the cached answers: the 'zero' rule of _DirectionLP
-        cached = src >= 0
+        # statuses of the cached and simplex answers: the 'zero' rule of _DirectionLP
+        cached = (src >= 0) | (src == -3)
         small = np.flatnonzero(cached & (w <= floor))
         if small.size:
             zero = small[w[small] <= ZERO_REL * np.maximum(1.0, F[small].sum(axis=1))]
             w[zero] = 0.0
             status[zero] = _ZERO
         if return_alpha:
-            for bi in np.unique(src[cached]):
+            for bi in np.unique(src[src >= 0]):
                 g = np.flatnonzero(src == bi)
                 alpha[g] = self._alpha(used[bi], F[g])
 
@@ -670,10 +859,12 @@ class BasisCache:
     Keep one across calls (e.g. the iterations of an ABC estimator): candidate
     strength vectors near earlier ones are then answered from cached bases
     without HiGHS. ``max_bases``: bases kept per key (least recently hit
-    dropped first); ``max_entries``: keys kept (oldest dropped first).
+    dropped first); ``max_entries``: keys kept (oldest dropped first); ``simplex``: solve cache
+    misses with the compiled dual simplex (default; False: HiGHS for every miss, as before).
     """
 
-    def __init__(self, max_bases: int = 2048, max_entries: int = 4096, decay: float = 0.5):
+    def __init__(self, max_bases: int = 2048, max_entries: int = 4096, decay: float = 0.5, simplex: bool = True):
+        self.simplex = simplex
         self.max_bases = max_bases
         self.max_entries = max_entries
         self.decay = decay
@@ -692,7 +883,7 @@ class BasisCache:
         key = (self._rkey(R), b.tobytes(), lb.tobytes(), ub.tobytes())
         e = self._entries.get(key)
         if e is None:
-            e = DirectionSolver(R, b, lb, ub, self.max_bases, self.decay)
+            e = DirectionSolver(R, b, lb, ub, self.max_bases, self.decay, self.simplex)
             self._entries[key] = e
             if len(self._entries) > self.max_entries:
                 self._entries.pop(next(iter(self._entries)))

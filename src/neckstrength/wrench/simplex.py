@@ -1,0 +1,455 @@
+"""Compiled warm-started bounded dual simplex for the max-wrench LP (see ``docs/batched_solver.md``).
+
+The LP of :mod:`neckstrength.wrench.batched` in muscle forces, with one row logical per
+equality row (``r = A z`` fixed at 0, used by rank-deficient bases)::
+
+    max w   s.t.   A z - r = 0,   A = [R, -b],   lb_j f_j <= x_j <= ub_j f_j,   0 <= w,   r = 0.
+
+Every cached basis is dual feasible for every ``f`` (its reduced costs do not depend on ``f``),
+so it is a valid start for a *dual* simplex on any candidate: :func:`solve_rows` runs, for each
+candidate, a bounded dual simplex (largest primal infeasibility leaves, textbook ratio test with
+ties broken by the largest pivot, explicit basis inverse updated in product form and rebuilt
+every ``REFACTOR`` pivots) from the basis given for that row, and then **certifies** the final
+basis from scratch with the same tests :meth:`DirectionSolver._add_basis` and the cache checks
+apply: a fresh inverse of the basis matrix (1-norm condition number below ``MAX_COND``),
+recomputed reduced costs with the optimal signs to ``DUAL_TOL``, every basic variable within its
+bounds to ``PRIMAL_TOL`` times the size of the terms, and the duality-gap rule ``GAP_REL``.
+Only certified rows are answered; the others (iteration limit, singular or ill-conditioned
+basis, primal infeasibility, a failed certificate) are reported as failed and go to HiGHS.
+
+Compiled with numba (``cache=True``: the machine code is stored next to this file, so each
+process after the first loads it instead of compiling; ``nogil=True``: directions run in
+parallel threads; ``fastmath`` limited to reassociation and fused multiply-add, see ``_FM``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+#: Floating-point flags: reassociation (vectorised dot products) and fused multiply-add only; no
+#: assumption about infinities or NaNs (``w`` has an infinite upper bound). The certificate's
+#: tolerances are orders of magnitude above the rounding differences this allows.
+_FM = {"reassoc", "contract", "nsz"}
+
+#: Rebuild the basis inverse from scratch after this many product-form updates.
+REFACTOR = 16
+
+#: Result codes of :func:`solve_rows`.
+CERTIFIED, FAILED, INFEASIBLE_SUSPECT = 0, 1, 2
+
+#: Status codes of the basis arrays (as ``highspy.HighsBasisStatus``: kLower, kBasic, kUpper).
+LOWER, BASIC, UPPER = 0, 1, 2
+
+
+@njit(cache=True, nogil=True, fastmath=_FM)
+def _invert(B, out, M):
+    """Gauss-Jordan inverse with partial pivoting (``M``: workspace); False if (numerically) singular."""
+    n = B.shape[0]
+    M[:, :] = B
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = 1.0 if i == j else 0.0
+    for c in range(n):
+        p = c
+        big = abs(M[c, c])
+        for r in range(c + 1, n):
+            if abs(M[r, c]) > big:
+                big = abs(M[r, c])
+                p = r
+        if big == 0.0 or not np.isfinite(big):
+            return False
+        if p != c:
+            for j in range(n):
+                t = M[c, j]
+                M[c, j] = M[p, j]
+                M[p, j] = t
+                t = out[c, j]
+                out[c, j] = out[p, j]
+                out[p, j] = t
+        piv = M[c, c]
+        for j in range(n):
+            M[c, j] /= piv
+            out[c, j] /= piv
+        for r in range(n):
+            if r != c:
+                g = M[r, c]
+                if g != 0.0:
+                    for j in range(n):
+                        M[r, j] -= g * M[c, j]
+                        out[r, j] -= g * out[c, j]
+    return True
+
+
+@njit(cache=True, nogil=True, fastmath=_FM)
+def _column(AT, j, out):
+    """Column ``j`` of ``[A, -I]`` (``AT = A.T``)."""
+    mp1, n = AT.shape
+    if j < mp1:
+        for i in range(n):
+            out[i] = AT[j, i]
+    else:
+        for i in range(n):
+            out[i] = 0.0
+        out[j - mp1] = -1.0
+
+
+@njit(cache=True, nogil=True, fastmath=_FM)
+def _basis_matrix(AT, basic, B):
+    mp1, n = AT.shape
+    for k in range(n):
+        j = basic[k]
+        if j < mp1:
+            for i in range(n):
+                B[i, k] = AT[j, i]
+        else:
+            for i in range(n):
+                B[i, k] = 0.0
+            B[j - mp1, k] = -1.0
+
+
+@njit(cache=True, nogil=True, fastmath=_FM)
+def _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_tol, dual_tol, gap_rel,
+             max_cond, alpha_out, want_alpha, B, Binv, y, d, s, rhs, xB):
+    """Optimality certificate of a basis for ``f``, from scratch. Returns (ok, w).
+
+    ``Binv``: the inverse of the basis matrix, computed afresh (not updated) by the caller.
+
+    The tests of ``DirectionSolver._add_basis`` (dual feasibility, condition number) and of the
+    cached checks (primal feasibility with the tolerance relative to the terms of ``T f``, the
+    duality-gap rule), evaluated directly for this ``f``.
+    """
+    mp1, n = AT.shape
+    m = mp1 - 1
+    _basis_matrix(AT, basic, B)
+    nB = 0.0
+    nI = 0.0
+    for k in range(n):
+        s1 = 0.0
+        s2 = 0.0
+        for i in range(n):
+            s1 += abs(B[i, k])
+            s2 += abs(Binv[i, k])
+        nB = max(nB, s1)
+        nI = max(nI, s2)
+    if not np.isfinite(nI) or nB * nI > max_cond:
+        return False, 0.0
+    # dual: B^T y = c_B (maximisation, c = e_w); reduced costs d = c - y A
+    for i in range(n):
+        y[i] = 0.0
+    for k in range(n):
+        if basic[k] == m:
+            for i in range(n):
+                y[i] = Binv[k, i]
+    ymax = 0.0
+    for i in range(n):
+        ymax = max(ymax, abs(y[i]))
+    fsum = 0.0
+    for j in range(m):
+        fsum += f[j]
+    fmean = fsum / m
+    for j in range(m):           # nonbasic x_j = s_j f_j
+        s[j] = 0.0
+    gapf = 0.0
+    for j in range(mp1):
+        if status[j] == BASIC:
+            d[j] = 0.0
+            continue
+        t = 0.0
+        for i in range(n):
+            t += y[i] * AT[j, i]
+        dj = (1.0 if j == m else 0.0) - t
+        d[j] = dj
+        tol = dual_tol * (ymax * Acol1[j] + (1.0 if j == m else 0.0))
+        if j == m:
+            if status[j] == UPPER or dj > tol:
+                return False, 0.0
+            continue
+        fixed = lb[j] * f[j] == ub[j] * f[j]
+        if status[j] == UPPER:
+            s[j] = ub[j]
+            if dj < -tol and not fixed:
+                return False, 0.0
+        else:
+            s[j] = lb[j]
+            if dj > tol and not fixed:
+                return False, 0.0
+        # weak-duality gap of a (tolerated) wrong-sign reduced cost: max(d lb, d ub) f - d s f
+        if not fixed:
+            g = max(dj * lb[j], dj * ub[j]) - dj * s[j]
+            if g > 0.0:
+                gapf += g * f[j]
+    # primal: basic values T f, T = -Binv A_N diag(s)
+    for i in range(n):
+        rhs[i] = 0.0
+    for j in range(m):
+        if status[j] != BASIC and s[j] != 0.0:
+            v = s[j] * f[j]
+            for i in range(n):
+                rhs[i] -= AT[j, i] * v
+    w = 0.0
+    w_basic = False
+    ok = True
+    for k in range(n):
+        v = 0.0
+        for i in range(n):
+            v += Binv[k, i] * rhs[i]
+        xB[k] = v
+        # |T_k| f = sum_j |sum_i Binv_ki A_ij| s_j f_j
+        tf = 0.0
+        for j in range(m):
+            if status[j] != BASIC and s[j] != 0.0:
+                t = 0.0
+                for i in range(n):
+                    t += Binv[k, i] * AT[j, i]
+                tf += abs(t) * s[j] * f[j]
+        jb = basic[k]
+        if jb < m:
+            tol = primal_tol * (tf + f[jb] + fmean)
+            if v - lb[jb] * f[jb] + tol < 0.0 or ub[jb] * f[jb] - v + tol < 0.0:
+                ok = False
+        elif jb == m:
+            ws = 0.0
+            for j in range(m):
+                ws += wscale[j] * f[j]
+            if v + primal_tol * (tf + ws) < 0.0:
+                ok = False
+            w = v
+            w_basic = True
+        else:
+            i = jb - mp1
+            rs = 0.0
+            ws = 0.0
+            for j in range(m):
+                rs += Rscale[i, j] * f[j]
+                ws += wscale[j] * f[j]
+            tol = primal_tol * (tf + rs + absb[i] * ws)
+            if abs(v) > tol:
+                ok = False
+        if not ok:
+            return False, 0.0
+    if gapf > 0.0 and not gap_rel * w - gapf >= 0.0:
+        return False, 0.0
+    if not w_basic:
+        w = 0.0
+    w = max(w, 0.0)
+    if want_alpha:
+        for j in range(m):
+            x = s[j] * f[j]
+            alpha_out[j] = x
+        for k in range(n):
+            if basic[k] < m:
+                alpha_out[basic[k]] = xB[k]
+        for j in range(m):
+            if f[j] > 0.0:
+                a = alpha_out[j] / f[j]
+            else:
+                a = lb[j]
+            alpha_out[j] = min(max(a, lb[j]), ub[j])
+    return True, w
+
+
+@njit(cache=True, nogil=True, fastmath=_FM)
+def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, max_iter, primal_tol,
+                  B, Binv, M, lo, hi, ptol, isbasic, rhs, xB, y, rho, aq, col):
+    """Bounded dual simplex from a dual feasible basis; updates ``basic``/``status`` in place.
+
+    ``Binv0``: the (fresh) inverse of the starting basis matrix. Returns (code, pivots):
+    ``CERTIFIED`` when no basic variable violates its bounds with a freshly computed inverse
+    in ``Binv`` (the caller certifies), ``INFEASIBLE_SUSPECT`` when the ratio test finds no entering variable,
+    ``FAILED`` on a singular basis or the iteration limit.
+    """
+    mp1, n = AT.shape
+    m = mp1 - 1
+    nv = mp1 + n
+    Binv[:, :] = Binv0
+    for j in range(nv):
+        lo[j] = 0.0
+        hi[j] = 0.0
+    for j in range(m):
+        lo[j] = lb[j] * f[j]
+        hi[j] = ub[j] * f[j]
+    hi[m] = np.inf
+    # loop tolerances: half the smallest certification tolerance of each kind of variable
+    fsum = 0.0
+    ws = 0.0
+    for j in range(m):
+        fsum += f[j]
+        ws += wscale[j] * f[j]
+    for j in range(m):
+        ptol[j] = 0.5 * primal_tol * fsum / m
+    ptol[m] = 0.5 * primal_tol * ws
+    for i in range(n):
+        rs = 0.0
+        for j in range(m):
+            rs += Rscale[i, j] * f[j]
+        ptol[mp1 + i] = 0.5 * primal_tol * rs
+    for j in range(nv):
+        isbasic[j] = False
+    for k in range(n):
+        isbasic[basic[k]] = True
+    since = 0
+    it = 0
+    while True:
+        # basic solution
+        for i in range(n):
+            rhs[i] = 0.0
+        for j in range(m):
+            if not isbasic[j]:
+                v = hi[j] if status[j] == UPPER else lo[j]
+                if v != 0.0:
+                    for i in range(n):
+                        rhs[i] -= AT[j, i] * v
+        r = -1
+        worst = 0.0
+        for k in range(n):
+            v = 0.0
+            for i in range(n):
+                v += Binv[k, i] * rhs[i]
+            xB[k] = v
+            jb = basic[k]
+            viol = 0.0
+            if v < lo[jb] - ptol[jb]:
+                viol = lo[jb] - v
+            elif v > hi[jb] + ptol[jb]:
+                viol = v - hi[jb]
+            if viol > worst:
+                worst = viol
+                r = k
+        if r < 0:
+            if since == 0:
+                return CERTIFIED, it
+            # optimal with an updated inverse: confirm with a fresh one
+            _basis_matrix(AT, basic, B)
+            if not _invert(B, Binv, M):
+                return FAILED, it
+            since = 0
+            continue
+        if it == max_iter:
+            return FAILED, it
+        jr = basic[r]
+        sgn = 1.0 if xB[r] < lo[jr] else -1.0
+        # duals (minimisation of -w): y = B^-T c_B with c_w = -1
+        for i in range(n):
+            y[i] = 0.0
+            rho[i] = Binv[r, i]
+        for k in range(n):
+            if basic[k] == m:
+                for i in range(n):
+                    y[i] = -Binv[k, i]
+        rmax = 0.0
+        for i in range(n):
+            rmax = max(rmax, abs(rho[i]))
+        # ratio test over the nonbasic, non-fixed variables
+        q = -1
+        best = np.inf
+        bestpiv = 0.0
+        for j in range(mp1):
+            if isbasic[j] or hi[j] == lo[j]:
+                continue
+            a = 0.0
+            t = 0.0
+            for i in range(n):
+                a += rho[i] * AT[j, i]
+                t += y[i] * AT[j, i]
+            at = sgn * a
+            if abs(at) <= 1e-9 * rmax * Acol1[j]:
+                continue
+            dj = (-1.0 if j == m else 0.0) - t          # reduced cost, minimisation
+            if status[j] == UPPER:
+                if at <= 0.0:
+                    continue
+                ratio = max(-dj, 0.0) / at
+            else:
+                if at >= 0.0:
+                    continue
+                ratio = max(dj, 0.0) / -at
+            if ratio < best * (1.0 - 1e-12) or (ratio <= best * (1.0 + 1e-12) and abs(at) > bestpiv):
+                best = min(best, ratio)
+                q = j
+                bestpiv = abs(at)
+        if q < 0:
+            return INFEASIBLE_SUSPECT, it
+        # pivot: q enters at row r, the leaving variable goes to its violated bound
+        if jr < mp1:
+            status[jr] = LOWER if sgn > 0 else UPPER
+        isbasic[jr] = False
+        isbasic[q] = True
+        status[q] = BASIC
+        basic[r] = q
+        since += 1
+        it += 1
+        if since >= REFACTOR:
+            _basis_matrix(AT, basic, B)
+            if not _invert(B, Binv, M):
+                return FAILED, it
+            since = 0
+        else:
+            _column(AT, q, col)
+            for k in range(n):
+                v = 0.0
+                for i in range(n):
+                    v += Binv[k, i] * col[i]
+                aq[k] = v
+            piv = aq[r]
+            if abs(piv) < 1e-14:
+                return FAILED, it
+            for i in range(n):
+                Binv[r, i] /= piv
+            for k in range(n):
+                if k != r and aq[k] != 0.0:
+                    g = aq[k]
+                    for i in range(n):
+                        Binv[k, i] -= g * Binv[r, i]
+
+
+@njit(cache=True, nogil=True, fastmath=_FM)
+def solve_rows(A, lb, ub, Acol1, wscale, Rscale, absb, F, rows, start, SB, SS, SBinv, max_iter, primal_tol, dual_tol,
+               gap_rel, max_cond, want_alpha, out_w, out_code, out_basic, out_status, out_alpha, out_pivots):
+    """Dual simplex + certificate for ``F[rows[t]]`` from cached basis ``start[t]`` (``SB``/``SS``,
+    inverse ``SBinv``).
+
+    Writes ``out_w[t]``, ``out_code[t]`` (``CERTIFIED``/``FAILED``/``INFEASIBLE_SUSPECT``), the
+    final basis (``out_basic[t]``, ``out_status[t]``), ``out_pivots[t]`` and, with ``want_alpha``,
+    the activations ``out_alpha[t]``.
+    """
+    n, mp1 = A.shape
+    nv = mp1 + n
+    AT = np.ascontiguousarray(A.T)      # columns of A contiguous for the inner loops
+    B = np.empty((n, n))
+    Binv = np.empty((n, n))
+    M = np.empty((n, n))
+    lo = np.empty(nv)
+    hi = np.empty(nv)
+    ptol = np.empty(nv)
+    isbasic = np.empty(nv, dtype=np.bool_)
+    rhs = np.empty(n)
+    xB = np.empty(n)
+    y = np.empty(n)
+    rho = np.empty(n)
+    aq = np.empty(n)
+    col = np.empty(n)
+    d = np.empty(mp1)
+    s = np.empty(mp1)
+    basic = np.empty(n, dtype=SB.dtype)
+    status = np.empty(mp1, dtype=SS.dtype)
+    for t in range(rows.shape[0]):
+        f = F[rows[t]]
+        basic[:] = SB[start[t]]
+        status[:] = SS[start[t]]
+        code, piv = _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, SBinv[start[t]], max_iter,
+                                  primal_tol,
+                                  B, Binv, M, lo, hi, ptol, isbasic, rhs, xB, y, rho, aq, col)
+        out_pivots[t] = piv
+        if code == CERTIFIED:
+            ok, w = _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_tol, dual_tol,
+                             gap_rel, max_cond, out_alpha[t], want_alpha, B, Binv, y, d, s, rhs, xB)
+            if ok:
+                out_w[t] = w
+            else:
+                code = FAILED
+        out_code[t] = code
+        for k in range(n):
+            out_basic[t, k] = basic[k]
+        for j in range(mp1):
+            out_status[t, j] = status[j]
