@@ -1,4 +1,8 @@
-"""Figures. Matplotlib with the non-interactive Agg backend (no display needed)."""
+"""Shared plot helpers: the radar grid of the test directions by plane (Figs. A.4, 5.x, 6.x, gap) and saving.
+
+Matplotlib with the non-interactive Agg backend (no display needed). Topic figures live in each subpackage's
+``plots.py`` (``abc.plots``, ``surfaces.plots``, ``sequential.plots``, ``mfi.plots``) and ``gap.report``.
+"""
 
 from __future__ import annotations
 
