@@ -1,5 +1,7 @@
 """C3D import: channel units, the 100 ms window and the peak, and a file round trip through ezc3d."""
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -38,28 +40,40 @@ def test_peak_units_and_window(directions):
     assert e.value.field == "Fx"
 
 
-def _write_c3d(path, data, labels, units, rate=1000.0):
-    import ezc3d
+_WRITER = """
+import json, sys
+import numpy as np
+import ezc3d
 
-    c = ezc3d.c3d()
-    n = data.shape[1]
-    c["parameters"]["POINT"]["RATE"]["value"] = [rate / 10]
-    c["parameters"]["POINT"]["LABELS"]["value"] = ("none",)
-    c["data"]["points"] = np.zeros((4, 1, n // 10))
-    c["parameters"]["ANALOG"]["RATE"]["value"] = [rate]
-    c["parameters"]["ANALOG"]["LABELS"]["value"] = tuple(labels)
-    c["parameters"]["ANALOG"]["UNITS"]["value"] = tuple(units)
-    c["data"]["analogs"] = data[None, :, :]
-    # ezc3d 1.7.2's writer cannot pass integer parameters held as numpy arrays to its C++ core with some numpy
-    # versions (SWIG overload error); as Python lists they write the same file
-    for group in c["parameters"].values():
-        if not isinstance(group, dict):
-            continue
-        for prm in group.values():
-            v = prm.get("value") if isinstance(prm, dict) else None
-            if isinstance(v, np.ndarray) and v.dtype.kind in "iu" and v.ndim == 1:
-                prm["value"] = [int(x) for x in v]
-    c.write(str(path))
+path, npy, meta = sys.argv[1:4]
+data = np.load(npy)
+labels, units, rate = json.loads(meta)
+c = ezc3d.c3d()
+n = data.shape[1]
+c["parameters"]["POINT"]["RATE"]["value"] = [rate / 10]
+c["parameters"]["POINT"]["LABELS"]["value"] = ("none",)
+c["data"]["points"] = np.zeros((4, 1, n // 10))
+c["parameters"]["ANALOG"]["RATE"]["value"] = [rate]
+c["parameters"]["ANALOG"]["LABELS"]["value"] = tuple(labels)
+c["parameters"]["ANALOG"]["UNITS"]["value"] = tuple(units)
+c["data"]["analogs"] = data[None, :, :]
+c.write(path)
+"""
+
+
+def _write_c3d(path, data, labels, units, rate=1000.0):
+    # Written in a fresh process: ezc3d and opensim are both SWIG modules, and once opensim is loaded (the model
+    # derivation tests run earlier in the same pytest process) ezc3d's writer fails its C++ overload resolution
+    # (TypeError in Parameter_set). Reading is not affected; users do not load both in one process.
+    import json
+    import subprocess
+    import sys
+
+    npy = Path(str(path) + ".npy")
+    np.save(npy, data)
+    r = subprocess.run([sys.executable, "-c", _WRITER, str(path), str(npy), json.dumps([labels, units, rate])],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
 
 
 def test_c3d_round_trip_to_import(tmp_path, directions):
