@@ -564,7 +564,9 @@ class Session:
             order = t.sort_values("score", ascending=False, kind="stable")
             lines.append(bar_chart(list(order["direction"]), list(order["score"]), mark=prop, marks=marks))
         e = self.estimate()
-        lines.append("Current estimate (posterior mean ± sd, N; prior in brackets):")
+        lines.append("Current estimate (posterior mean ± sd, N; prior in brackets). The sd assumes the model fits every "
+                     "direction within the kernel width; on real participants it does not (docs/calibration.md): read it "
+                     "as a lower bound of the uncertainty, not a calibrated interval:")
         lw = max(len(m) for m in self.muscles)
         for r in e.to_dict("records"):
             lines.append(f"  {r['muscle']:<{lw}} {r['f_c']:8.1f} ± {r['sd_c']:6.1f}   "
@@ -587,7 +589,8 @@ class Session:
                f"{len(self.state.tested)} of {len(self.directions)} directions: {', '.join(self.state.tested)}",
                f"N_F {self.settings.n_candidates}, N_S {self.settings.n_sim}, bins {self.settings.n_bins}; prior f_0 = "
                f"{self.opts.prior_scale:g} f'_base, sd 0.3 f_0; seed {self.seed}; candidate key {self.key}",
-               "f_c = posterior mean, sd_c = posterior sd (N); entropy in nats (Eq. 6.3)"]
+               "f_c = posterior mean, sd_c = posterior sd (N; not calibrated under model misfit, docs/calibration.md); "
+               "entropy in nats (Eq. 6.3)"]
         atomic_write_csv(e, self.out / "summary.csv", hdr, float_format="%.6g")
         # per-step trajectory (iteration 0 = prior)
         rows = []

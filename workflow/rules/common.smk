@@ -231,6 +231,15 @@ def gap_outputs():
     return out
 
 
+def calibration_outputs_list():
+    # outputs of workflow/rules/calibration.smk (its rule `calibration` builds them; in `all` with calibration.in_all)
+    out = []
+    for named in config["calibration"]["models"]:
+        out += [f"results/calibration/{named}/{f}" for f in ("sbc_coverage.csv", "fig_rank_histograms.png",
+                                                             "fig_coverage.png")]
+    return out
+
+
 def final_outputs():
     out = [
         "results/model/full_model.csv",
@@ -248,6 +257,8 @@ def final_outputs():
     out += chapter6_outputs()
     out += chapter3_outputs()
     out += [f"results/trials/{t}/quality_report.md" for t in config.get("trials", {}).get("datasets", {})]
+    if config["calibration"]["in_all"]:
+        out += calibration_outputs_list()
     out += report_outputs()
     return out
 

@@ -51,7 +51,9 @@ def chapter5_estimate(config: Mapping, model_name: str, dataset: str, directions
     est = pd.DataFrame(rows)
     hdr = [f"Chapter 5 ABC estimate (Algorithm 4): model {model_name}, data set {dataset}",
            f"iterations {res.iterations}, converged {res.converged}, D(f_c) = {res.D_fc:.4f}, scale a = {a:.4f}",
-           f"settings {json.dumps(res.settings)}; seed {config['seed']} (only subsamples stored candidates)"]
+           f"settings {json.dumps(res.settings)}; seed {config['seed']} (only subsamples stored candidates)",
+           "sigma_c is a HEURISTIC sampling width (Eq. 5.12), not a posterior sd: f_c (1 +- sigma_c) covers the truth "
+           "far less often than a 68% interval would (docs/calibration.md)"]
     atomic_write_csv(est, outputs["estimate"], hdr, float_format="%.6g")
     meta = {"model": model_name, "dataset": dataset, "iterations": res.iterations, "converged": res.converged,
             "D_fc": res.D_fc, "scale_a": a, "settings": res.settings, "seed": config["seed"]}
@@ -76,7 +78,7 @@ def chapter5_figures(config: Mapping, model_name: str, dataset: str, directions_
     base = est.groupby("parameter")["f_base"].first()
     tag = f"{model_name}, {dataset}"
     abc_traces(hist, truth, base, outputs["traces"], f"Estimate per iteration ({tag}): f_c black, f_c(1 +- sigma) "
-               "blue dashed, truth red dashed, f'_base x")
+               "blue dashed (sampling width, a heuristic: not an interval), truth red dashed, f'_base x")
     dk_histograms(dk, outputs["dk_hist"], f"Composite scores D_k per iteration ({tag})")
     d_by_direction_plot(dd, outputs["d_dir"], f"Scores d_ik by direction, last iteration ({tag})")
     parallel_coordinates(cand, truth, outputs["parallel"], f"Candidates coloured by D_k percentile ({tag})")
@@ -210,7 +212,8 @@ def chapter5_coverage(config: Mapping, model_name: str, directions_csv, out_csv,
                                                    truth=("truth", "first"), mean_sigma=("sigma_c", "mean"),
                                                    mean_D_fc=("D_fc", "mean")).reset_index()
     hdr = [f"Posterior check (Sec. 7.1.3): {cc['replicates']} simulated 'norm' data sets of {model_name} with "
-           f"log-normal measurement noise sd {cc['noise']}; covered = truth within f_c (1 +- sigma_c)",
+           f"log-normal measurement noise sd {cc['noise']}; covered = truth within f_c (1 +- sigma_c) "
+           "(sigma_c: a heuristic sampling width, not a posterior sd; docs/calibration.md)",
            f"overall coverage {df['covered'].mean():.3f}; seed {config['seed']}"]
     print("\n".join(hdr))
     print(summ.to_string(index=False))

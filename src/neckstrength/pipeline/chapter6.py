@@ -456,7 +456,10 @@ def chapter6_joint(config: Mapping, model_name: str, dataset: str, directions_cs
                      float_format="%.6g")
     est = pd.concat(finals, ignore_index=True)
     atomic_write_csv(est, out_estimate, [f"joint sequential estimator: final estimate after all tests, {model_name} "
-                                         f"/ {dataset}; f_true = f_a of a simulated data set (NaN for participants)"],
+                                         f"/ {dataset}; f_true = f_a of a simulated data set (NaN for participants)",
+                                         "sd_c: calibrated on simulated p2m7 data (docs/calibration.md); NOT on "
+                                         "s3m24 at the sizes checked, and not under model misfit (participants): "
+                                         "there it understates the uncertainty"],
                      float_format="%.6g")
     summary = {"model": model_name, "dataset": dataset, "seed": int(config["seed"]), "seed_key": key,
                "settings": {f.name: getattr(settings, f.name) for f in fields(settings)}, "use_emg": use_emg,
