@@ -38,16 +38,5 @@ def test_our_smc_respects_its_budget_and_moves_toward_the_data(p2m7_full_config)
     assert r["tolerance"] < 0.9   # the prior's median distance is larger: the sampler made progress
 
 
-def test_pyabc_and_ours_agree_on_a_tiny_p2m7_problem(p2m7_full_config):
-    pytest.importorskip("pyabc")
-    from neckstrength.calibration.crosscheck import compare
-
-    model, data, f0 = _p2m7_weak(p2m7_full_config)
-    df = compare(model, data, f0, SMCSettings(n_particles=60, budget=600), 11)
-    t = comparison_table(df)
-    runs = df.groupby("sampler")["n_sim"].first()
-    assert runs["neckstrength abc_smc"] <= 600 and 600 <= runs["pyABC ABCSMC"] <= 600 + 2 * 60 * 20
-    # same target: posterior means agree within the prior's spread (log-sd 0.3): typically, and never by more than
-    # 1.5 prior sd at this tiny size (60 particles)
-    lr = np.abs(np.log(t["ours_mean"] / t["pyabc_mean"]))
-    assert np.median(lr) < 0.2 and (lr < 0.45).all(), t
+# The pyABC comparison itself is not a test (pyabc is an optional extra, not installed in CI): it runs in
+# benchmarks/bench_pyabc_crosscheck.py, whose measured table is in docs/calibration.md.
