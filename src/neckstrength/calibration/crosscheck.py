@@ -36,6 +36,7 @@ def run_pyabc(model: ReducedModel, data: Dataset, f0: np.ndarray, settings: SMCS
     import logging
 
     import pyabc
+
     from neckstrength.wrench.batched import BasisCache
 
     for name in ("ABC", "Epsilon", "Distance", "Sampler", "History", "Acceptor", "Transition"):

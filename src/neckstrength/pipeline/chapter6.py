@@ -50,7 +50,7 @@ from neckstrength.sequential.analysis import (
 from neckstrength.sequential.joint import JointPosterior, run_joint
 from neckstrength.sequential.orders import stop_iteration
 from neckstrength.sequential.plots import (
-    _save,
+    fig_criteria_curves,
     fig_expected_dS,
     fig_iterations,
     fig_order_entropy,
@@ -333,7 +333,6 @@ def chapter6_order_comparison(config: Mapping, directions_csv, out_csv: str | Pa
     order (Eq. 6.7 with the prior predictive, as printed), of the same with the posterior predictive, of the
     average order (all K! orders via the subsets) and of the best order in hindsight.
     """
-    import matplotlib.pyplot as plt
 
     c = config["chapter6"]
     oc = c["order_comparison"]
@@ -382,19 +381,10 @@ def chapter6_order_comparison(config: Mapping, directions_csv, out_csv: str | Pa
                                    "entropy = mean posterior entropy over muscles (nats); rel_error = mean |E - f_a| / "
                                    "f_a; entropy_rank = share of all K! orders with lower entropy after t tests"],
                      float_format="%.5g")
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for crit, g in df.groupby("criterion", sort=False):
-        m_ = g.groupby("t")[["entropy", "rel_error"]].mean()
-        axes[0].plot(m_.index, m_["entropy"], "-o", ms=3, label=crit)
-        axes[1].plot(m_.index, 100 * m_["rel_error"], "-o", ms=3, label=crit)
-    axes[0].set_ylabel("mean posterior entropy (nats)")
-    axes[1].set_ylabel("mean |E - f_a| / f_a (%)")
-    for ax in axes:
-        ax.set_xlabel("number of measurements")
-    axes[0].legend(fontsize=7)
-    fig.suptitle(f"Entropy-reducing vs random orders, mean over {oc['n_participants']} simulated participants "
-                 f"({model.name})", fontsize=10)
-    _save(fig, out_fig)
+    curves = df.groupby(["criterion", "t"], sort=False)[["entropy", "rel_error"]].mean().reset_index()
+    fig_criteria_curves(curves, "mean posterior entropy (nats)",
+                        f"Entropy-reducing vs random orders, mean over {oc['n_participants']} simulated participants "
+                        f"({model.name})", out_fig)
     return df
 
 
@@ -482,7 +472,6 @@ def chapter6_criteria(config: Mapping, model_name: str, directions_csv, out_tabl
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     from neckstrength.wrench.batched import BasisCache
 
@@ -566,19 +555,7 @@ def chapter6_criteria(config: Mapping, model_name: str, directions_csv, out_tabl
     atomic_write_csv(agg, out_summary, note + ["d_*_vs_random: criterion minus the mean of the random orders of the "
                                                "same participant (negative = better), mean and standard error over "
                                                "participants"], float_format="%.5g")
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for crit, g in agg.groupby("criterion", sort=False):
-        axes[0].plot(g["t"], g["entropy"], "-o", ms=3, label=crit)
-        axes[1].plot(g["t"], 100 * g["rel_error"], "-o", ms=3, label=crit)
-    axes[0].set_ylabel("mean marginal entropy (nats)")
-    axes[1].set_ylabel("mean |E - f_a| / f_a (%)")
-    for ax in axes:
-        ax.set_xlabel("number of measurements")
-    axes[0].legend(fontsize=7)
-    fig.suptitle(f"Test-selection criteria on the joint posterior, mean over {df['participant'].nunique()} simulated "
-                 f"participants ({model_name})", fontsize=10)
-    fig.tight_layout()
-    Path(out_fig).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_fig, dpi=120)
-    plt.close(fig)
+    fig_criteria_curves(agg, "mean marginal entropy (nats)",
+                        f"Test-selection criteria on the joint posterior, mean over {df['participant'].nunique()} "
+                        f"simulated participants ({model_name})", out_fig, dpi=120)
     return agg

@@ -1,7 +1,9 @@
-"""Chapter 6 figures: posteriors per muscle, iterations, order entropies, expected entropy reduction, radar."""
+"""Chapter 6 figures: posteriors per muscle, iterations, order entropies, expected entropy reduction, radar,
+and criteria curves (entropy and error vs number of tests)."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -163,3 +165,28 @@ def fig_radar_sagittal(directions: pd.DataFrame, series, out, title: str) -> Non
     ax.legend(loc="lower center", bbox_to_anchor=(0.5, -0.18), ncol=2, fontsize=8)
     ax.set_title(title + " [N]", fontsize=9, pad=18)
     _save(fig, out)
+
+
+def fig_criteria_curves(curves: pd.DataFrame, entropy_label: str, title: str, out, dpi: int = 110) -> None:
+    """Mean posterior entropy and mean relative error vs number of measurements, one line per criterion.
+
+    ``curves``: columns ``criterion``, ``t``, ``entropy``, ``rel_error`` (means over simulated participants).
+    """
+    from neckstrength.plotting import plt   # Agg backend
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for crit, g in curves.groupby("criterion", sort=False):
+        g = g.sort_values("t")
+        axes[0].plot(g["t"], g["entropy"], "-o", ms=3, label=crit)
+        axes[1].plot(g["t"], 100 * g["rel_error"], "-o", ms=3, label=crit)
+    axes[0].set_ylabel(entropy_label)
+    axes[1].set_ylabel("mean |E - f_a| / f_a (%)")
+    for ax in axes:
+        ax.set_xlabel("number of measurements")
+    axes[0].legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+

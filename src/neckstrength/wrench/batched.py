@@ -648,6 +648,15 @@ class DirectionSolver:
                     break
             used = list(self.bases)
 
+        def infeasible(g: np.ndarray) -> None:
+            """Rows ``g`` declared infeasible by a Farkas certificate (cached or just learned)."""
+            status[g] = _INF
+            src[g] = -2
+            open_[g] = False
+            self.stats.farkas_hits += int(g.size)
+            if return_alpha:
+                alpha[g] = np.nan
+
         def accept(bb_index: int, rows: np.ndarray) -> int:
             bb = used[bb_index]
             idx, wv = self._try(bb, F, rows)
@@ -719,13 +728,7 @@ class DirectionSolver:
             for cm in self.farkas:
                 inf |= Fr @ cm < 0
             if inf.any():
-                g = rem[inf]
-                status[g] = _INF
-                src[g] = -2
-                open_[g] = False
-                self.stats.farkas_hits += int(inf.sum())
-                if return_alpha:
-                    alpha[g] = np.nan
+                infeasible(rem[inf])
                 rem = rem[~inf]
         if rem.size and simplex and nb:
             # the compiled dual simplex, warm-started from each row's best-ranked basis, in parts:
@@ -801,13 +804,7 @@ class DirectionSolver:
             else:
                 inf = F[rest] @ new < 0
                 if inf.any():
-                    g = rest[inf]
-                    status[g] = _INF
-                    src[g] = -2
-                    open_[g] = False
-                    self.stats.farkas_hits += int(inf.sum())
-                    if return_alpha:
-                        alpha[g] = np.nan
+                    infeasible(rest[inf])
             rem = rest[open_[rest]]
             pos = 0
         # statuses of the cached and simplex answers: the 'zero' rule of _DirectionLP
