@@ -227,7 +227,15 @@ def _cmd_derive(args) -> int:
     argv = ["--osim", args.osim, "--out", args.out]
     if args.multifidus_osim:
         argv += ["--multifidus-osim", args.multifidus_osim]
-    return derive_opensim.main(argv) or 0
+    rc = derive_opensim.main(argv) or 0
+    if rc == 0 and args.postures:
+        from neckstrength.model.opensim import postures as derive_postures
+
+        if not args.multifidus_osim:
+            raise SystemExit("derive-model --postures needs --multifidus-osim")
+        rc = derive_postures.main(["--osim", args.osim, "--multifidus-osim", args.multifidus_osim,
+                                   "--out", str(Path(args.out) / "postures")]) or 0
+    return rc
 
 
 def _cmd_session(args) -> int:
@@ -294,6 +302,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--osim", required=True)
     d.add_argument("--multifidus-osim", default=None)
     d.add_argument("--out", default="data/model")
+    d.add_argument("--postures", action="store_true",
+                   help="also derive the posture tables into <out>/postures (docs/postures.md)")
     d.set_defaults(func=_cmd_derive)
 
     d = sub.add_parser("directions", help="write the test-direction table")
