@@ -119,6 +119,12 @@ _THREADS = {"n": 1}
 
 
 def _simulate(model, F, data, chunk, return_alpha, cache=None):
+    if getattr(data, "postures", None) is not None and hasattr(model, "wrenches"):
+        # (posture, direction) tests (issue 20): a neckstrength.postures.PostureSet solves one posture at a time
+        return model.wrenches(F, data.U, data.postures, data.alpha_lb, data.alpha_ub, return_alpha=return_alpha,
+                              cache=cache, n_threads=_THREADS["n"])
+    if any(p != "neutral" for p in (getattr(data, "postures", None) or ())):
+        raise ValueError(f"data set {data.name} has tests in other postures: pass a PostureSet as the model")
     return solve(model, F, data.U, data.alpha_lb, data.alpha_ub, return_alpha=return_alpha,
                             chunk_size=chunk, cache=cache, n_threads=_THREADS["n"])
 

@@ -58,7 +58,13 @@ class SMCResult:
 
 
 def _distance(model, F, data, eps, cache):
-    w, _, _ = solve(model, F, data.U, data.alpha_lb, data.alpha_ub, return_alpha=False, cache=cache)
+    if getattr(data, "postures", None) is not None and hasattr(model, "wrenches"):
+        # (posture, direction) tests (issue 20): a neckstrength.postures.PostureSet solves one posture at a time
+        w, _, _ = model.wrenches(F, data.U, data.postures, data.alpha_lb, data.alpha_ub, cache=cache)
+    elif any(p != "neutral" for p in (getattr(data, "postures", None) or ())):
+        raise ValueError(f"data set {data.name} has tests in other postures: pass a PostureSet as the model")
+    else:
+        w, _, _ = solve(model, F, data.U, data.alpha_lb, data.alpha_ub, return_alpha=False, cache=cache)
     return 1.0 - composite_score(data_discrepancy(w, data.w_meas[None, :], eps))
 
 

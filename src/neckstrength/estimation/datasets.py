@@ -27,6 +27,7 @@ class Dataset:
     alpha_lb: np.ndarray | None = None  # (K, m) activation bounds (EMG), or None
     alpha_ub: np.ndarray | None = None
     f_true: np.ndarray | None = None   # (m,) for simulated data sets
+    postures: list[str] | None = None  # (K,) posture of each test (issue 20); None = all neutral
 
     @property
     def forces(self) -> np.ndarray:

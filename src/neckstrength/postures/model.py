@@ -98,6 +98,20 @@ class PostureSet:
     def planar(self) -> bool:
         return self.neutral.planar
 
+    @property
+    def strengths(self) -> np.ndarray:
+        """Baseline (neutral) group strengths: the parameters every estimator works with."""
+        return self.neutral.strengths
+
+    @property
+    def moment_arms(self) -> np.ndarray:
+        """All postures' grouped moment arms side by side (for fingerprints such as Algorithm 4's checkpoint key)."""
+        return np.concatenate([self.models[p].moment_arms for p in self.models], axis=0)
+
+    @property
+    def JT(self) -> np.ndarray:
+        return np.concatenate([self.models[p].JT for p in self.models], axis=0)
+
     def task_direction(self, u6: np.ndarray) -> np.ndarray:
         return self.neutral.task_direction(u6)
 
