@@ -240,6 +240,22 @@ def calibration_outputs_list():
     return out
 
 
+POSTURE_TABLES = [
+    f"{config['data']['model_dir']}/postures/{kind}_{p}.csv"
+    for p in config["postures"]["postures"]
+    for kind in ("moment_arms", "coordinates", "force_length")
+] + [f"{config['data']['model_dir']}/postures/postures.csv"]
+
+
+def postures_outputs():
+    # outputs of workflow/rules/postures.smk (issue 20)
+    out = []
+    for named in config["postures"]["models"]:
+        out += [f"results/postures/{named}/{f}" for f in ("summary.csv", "identified.csv", "fig_postures.png",
+                                                          "smc.csv")]
+    return out
+
+
 def final_outputs():
     out = [
         "results/model/full_model.csv",
@@ -259,6 +275,7 @@ def final_outputs():
     out += [f"results/trials/{t}/quality_report.md" for t in config.get("trials", {}).get("datasets", {})]
     if config["calibration"]["in_all"]:
         out += calibration_outputs_list()
+    out += postures_outputs()
     out += report_outputs()
     return out
 
