@@ -15,7 +15,7 @@ from neckstrength.config import full_model_from_config, joint_settings, model_fr
 from neckstrength.io import atomic_write_csv
 from neckstrength.pipeline.common import load_directions
 from neckstrength.postures.compare import ComparisonSettings, compare_postures, first_picks, summarize
-from neckstrength.postures.datasets import posture_dataset, test_grid
+from neckstrength.postures.datasets import posture_dataset, posture_grid
 from neckstrength.postures.model import build_posture_set
 from neckstrength.postures.tables import check_posture_tables, load_posture_tables, provenance
 from neckstrength.seeds import seed_sequence
@@ -109,7 +109,7 @@ def postures_compare(config: Mapping, model_name: str, directions_csv, out_group
                                                             "picks (arm neutral + postures)"], float_format="%.4g")
     # ABC-SMC on mixed tests: the first deficit participant, every test vs the neutral tests only, equal budget
     sm = pc["smc"]
-    grid = test_grid(pset, d)
+    grid = posture_grid(pset, d)
     rng = np.random.default_rng(seed_sequence(config["seed"], f"postures/smc/{model_name}"))
     from neckstrength.postures.compare import simulated_participants
 

@@ -18,7 +18,7 @@ from typing import Callable, Sequence
 import numpy as np
 import pandas as pd
 
-from neckstrength.postures.datasets import posture_dataset, test_grid
+from neckstrength.postures.datasets import posture_dataset, posture_grid
 from neckstrength.postures.model import PostureSet
 from neckstrength.postures.sequential import PostureJointPosterior
 from neckstrength.sequential.joint import JointSettings
@@ -66,7 +66,7 @@ def compare_postures(pset: PostureSet, directions: pd.DataFrame, deep_groups: Se
                      progress: Callable[[str], None] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Run the comparison. Returns (per group: participant, condition, arm, t, group, f_a, f_base, E, sd, rel_error,
     rel_sd, p_below; per pick: participant, arm, t, test, posture)."""
-    grid = test_grid(pset, directions)
+    grid = posture_grid(pset, directions)
     s_truth, s_noise, s_runs = seed.spawn(3)
     parts = simulated_participants(pset, deep_groups, s, np.random.default_rng(s_truth))
     noise_rng = np.random.default_rng(s_noise)

@@ -11,14 +11,14 @@ import pandas as pd
 
 from neckstrength.estimation.datasets import WRENCH, Dataset
 from neckstrength.io import MEASUREMENT_SCHEMA, Column, DataValidationError, Schema, read_table
-from neckstrength.postures.model import PostureSet, split_label, test_label
+from neckstrength.postures.model import PostureSet, split_label, pair_label
 from neckstrength.wrench.problem import STATUS_CODES
 
 
 def posture_measurement_schema(postures: Sequence[str]) -> Schema:
     return Schema(MEASUREMENT_SCHEMA.name + " with a posture column",
                   (Column("direction", "str"), Column("posture", "str", choices=tuple(postures))),
-                  unique=("direction", "posture"),
+                  unique=(),
                   pattern_columns=MEASUREMENT_SCHEMA.pattern_columns)
 
 
@@ -31,6 +31,12 @@ def read_posture_measurements(path: str | Path, directions: Sequence[str], postu
     else:
         df = read_table(path, MEASUREMENT_SCHEMA)
         df.insert(1, "posture", "neutral")
+    seen: dict = {}
+    for i, key in enumerate(zip(df["direction"], df["posture"])):
+        if key in seen:
+            raise DataValidationError(path, f"duplicate test {key[0]} in posture {key[1]} (first at row {seen[key]})",
+                                      i + 1, None, "posture")
+        seen[key] = i + 1
     known = set(directions)
     for i, d in enumerate(df["direction"]):
         if d not in known:
@@ -39,11 +45,11 @@ def read_posture_measurements(path: str | Path, directions: Sequence[str], postu
     cols = [c for c in df.columns if c not in ("direction", "posture", "avg", "sd")]
     if not cols:
         raise DataValidationError(path, "no participant columns (expected e.g. S003, S004, ...)")
-    df.index = [test_label(p, d) for p, d in zip(df["posture"], df["direction"])]
+    df.index = [pair_label(p, d) for p, d in zip(df["posture"], df["direction"])]
     return df[["direction", "posture", *cols]]
 
 
-def test_grid(pset: PostureSet, directions: pd.DataFrame, postures: Sequence[str] | None = None) -> pd.DataFrame:
+def posture_grid(pset: PostureSet, directions: pd.DataFrame, postures: Sequence[str] | None = None) -> pd.DataFrame:
     """Every (posture, direction) test of the model: label, posture, direction, task-space U, force scale."""
     d = directions[directions["sagittal"]] if pset.planar else directions
     d = d.reset_index(drop=True)
@@ -51,7 +57,7 @@ def test_grid(pset: PostureSet, directions: pd.DataFrame, postures: Sequence[str
     rows = []
     for p in (pset.postures if postures is None else postures):
         for k, r in d.iterrows():
-            rows.append({"label": test_label(p, r["name"]), "posture": p, "direction": r["name"],
+            rows.append({"label": pair_label(p, r["name"]), "posture": p, "direction": r["name"],
                          "force_scale": float(r["force_scale"]), **{f"u{j}": U[k, j] for j in range(U.shape[1])}})
     return pd.DataFrame(rows)
 
@@ -90,5 +96,5 @@ def participant_posture_dataset(pset: PostureSet, grid: pd.DataFrame, participan
                    postures=list(g["posture"]))
 
 
-__all__ = ["read_posture_measurements", "test_grid", "posture_dataset", "participant_posture_dataset",
+__all__ = ["read_posture_measurements", "posture_grid", "posture_dataset", "participant_posture_dataset",
            "split_label"]

@@ -29,7 +29,7 @@ from neckstrength.wrench import solve
 SEPARATOR = ":"
 
 
-def test_label(posture: str, direction: str) -> str:
+def pair_label(posture: str, direction: str) -> str:
     return direction if posture == "neutral" else f"{posture}{SEPARATOR}{direction}"
 
 

@@ -1,7 +1,7 @@
 """The joint sequential estimator over (posture, direction) tests, with an optional cost per posture change.
 
 :class:`PostureJointPosterior` is :class:`neckstrength.sequential.joint.JointPosterior` whose "directions" are
-test labels (``direction`` for neutral, ``posture:direction`` otherwise, :func:`neckstrength.postures.test_label`)
+test labels (``direction`` for neutral, ``posture:direction`` otherwise, :func:`neckstrength.postures.pair_label`)
 and whose candidate wrenches come from the posture models (:meth:`PostureSet.wrenches`). The selection criterion
 (``joint_eig`` or ``marginal_entropy``) scores every remaining (posture, direction) pair; with ``change_cost`` > 0
 a pair in another posture than the last test's is charged that many nats (``joint_eig``: expected information in
