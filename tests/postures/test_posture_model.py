@@ -16,8 +16,8 @@ from neckstrength.io import DataValidationError
 from neckstrength.model.full import load_full_model
 from neckstrength.model.reduction import named_model, scale_strengths
 from neckstrength.postures.compare import ComparisonSettings, compare_postures, summarize
-from neckstrength.postures.datasets import posture_dataset, read_posture_measurements, posture_grid
-from neckstrength.postures.model import build_posture_set, split_label, pair_label
+from neckstrength.postures.datasets import posture_dataset, posture_grid, read_posture_measurements
+from neckstrength.postures.model import build_posture_set, pair_label, split_label
 from neckstrength.postures.sequential import PostureJointPosterior
 from neckstrength.postures.tables import load_posture_tables
 from neckstrength.sequential.joint import JointSettings
@@ -38,7 +38,7 @@ def setup():
 
 
 def test_neutral_posture_is_the_named_model(setup):
-    full, tables, d, neutral, ps = setup
+    _, _, d, neutral, ps = setup
     _, U = model_directions_table(neutral, d)
     F = neutral.strengths * np.exp(0.2 * np.random.default_rng(0).standard_normal((20, neutral.m)))
     w0, _, _ = solve(neutral, F, U)
@@ -64,7 +64,7 @@ def test_rho_reparametrisation_is_exact(setup):
 
 
 def test_postures_change_the_max_wrench_and_the_deep_extensors_share(setup):
-    full, tables, d, neutral, ps = setup
+    _, _, d, neutral, ps = setup
     grid = posture_grid(ps, d)
     assert len(grid) == 7 * len(ps.postures)
     base = posture_dataset(ps, grid, "base", neutral.strengths)
@@ -92,7 +92,7 @@ def test_posture_column_in_measurements(tmp_path, setup):
 
 
 def test_abc_smc_and_algorithm4_take_mixed_tests(setup):
-    full, tables, d, neutral, ps = setup
+    _, _, d, neutral, ps = setup
     grid = posture_grid(ps, d)
     data = posture_dataset(ps, grid, "mix", neutral.strengths)
     res = abc_smc(ps, data, neutral.strengths, SMCSettings(n_particles=100, budget=400),
@@ -105,7 +105,7 @@ def test_abc_smc_and_algorithm4_take_mixed_tests(setup):
 
 
 def test_joint_estimator_over_pairs_and_change_cost(setup):
-    full, tables, d, neutral, ps = setup
+    _, _, d, neutral, ps = setup
     grid = posture_grid(ps, d)
     U = grid[[c for c in grid.columns if c.startswith("u") and c[1:].isdigit()]].to_numpy(float)
     data = posture_dataset(ps, grid, "mix", neutral.strengths)
@@ -130,7 +130,7 @@ def test_joint_estimator_over_pairs_and_change_cost(setup):
 
 
 def test_comparison_runs_and_reports_every_group(setup):
-    full, tables, d, neutral, ps = setup
+    _, _, d, neutral, ps = setup
     s = ComparisonSettings(n_deficit=1, n_normal=0, t_values=(3, 9))
     g, picks = compare_postures(ps, d, ["multif"], JointSettings(n_candidates=800, n_moves=0), s,
                                 np.random.SeedSequence(5))

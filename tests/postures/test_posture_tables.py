@@ -16,11 +16,7 @@ import pandas as pd
 import pytest
 
 from neckstrength.model.full import COORDINATES, load_full_model
-from neckstrength.postures.tables import (
-    POSTURE_NAMES,
-    check_posture_tables,
-    load_posture_tables,
-)
+from neckstrength.postures.tables import POSTURE_NAMES, check_posture_tables, load_posture_tables
 
 ROOT = Path(__file__).resolve().parents[2]
 MODEL = ROOT / "data" / "model"

@@ -8,7 +8,7 @@
 - :mod:`.compare`     what postures buy: neutral-only vs neutral + postures at equal numbers of tests
 """
 
-from neckstrength.postures.model import PostureSet, build_posture_set, split_label, pair_label
+from neckstrength.postures.model import PostureSet, build_posture_set, pair_label, split_label
 from neckstrength.postures.tables import (
     POSTURE_NAMES,
     SAGITTAL_POSTURES,
@@ -17,5 +17,14 @@ from neckstrength.postures.tables import (
     load_posture_tables,
 )
 
-__all__ = ["PostureSet", "build_posture_set", "split_label", "pair_label", "POSTURE_NAMES", "SAGITTAL_POSTURES",
-           "PostureTable", "check_posture_tables", "load_posture_tables"]
+__all__ = [
+    "POSTURE_NAMES",
+    "SAGITTAL_POSTURES",
+    "PostureSet",
+    "PostureTable",
+    "build_posture_set",
+    "check_posture_tables",
+    "load_posture_tables",
+    "pair_label",
+    "split_label",
+]

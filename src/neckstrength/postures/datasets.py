@@ -11,7 +11,7 @@ import pandas as pd
 
 from neckstrength.estimation.datasets import WRENCH, Dataset
 from neckstrength.io import MEASUREMENT_SCHEMA, Column, DataValidationError, Schema, read_table
-from neckstrength.postures.model import PostureSet, split_label, pair_label
+from neckstrength.postures.model import PostureSet, pair_label, split_label
 from neckstrength.wrench.problem import STATUS_CODES
 
 
@@ -96,5 +96,10 @@ def participant_posture_dataset(pset: PostureSet, grid: pd.DataFrame, participan
                    postures=list(g["posture"]))
 
 
-__all__ = ["read_posture_measurements", "posture_grid", "posture_dataset", "participant_posture_dataset",
-           "split_label"]
+__all__ = [
+    "participant_posture_dataset",
+    "posture_dataset",
+    "posture_grid",
+    "read_posture_measurements",
+    "split_label",
+]

@@ -132,7 +132,7 @@ def _skull_pose(model, state) -> tuple[np.ndarray, np.ndarray]:
 def skull_twist(model, state, coord) -> np.ndarray:
     """(omega, v) of the skull per unit rate of ``coord``, in the skull frame at the current posture (central
     finite difference of the skull pose): the row of ``J^T`` for that coordinate."""
-    R0, p0 = _skull_pose(model, state)
+    R0, _ = _skull_pose(model, state)
     q0 = coord.getValue(state)
     out = []
     for h in (TWIST_STEP, -TWIST_STEP):
