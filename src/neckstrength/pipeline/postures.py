@@ -99,7 +99,8 @@ def postures_compare(config: Mapping, model_name: str, directions_csv, out_group
             f"exp(N(0, {s.spread}^2)); forces x exp(N(0, {s.noise_rel}^2))"]
     atomic_write_csv(groups, out_groups, note, float_format="%.6g")
     atomic_write_csv(summary, out_summary, note + ["per condition, arm, t and group: mean over participants (and "
-                                                   "sides) of |E - f_a| / f_a and of the posterior sd / f_a; n_tests "
+                                                   "sides) of |E - f_a| / f_a and of the posterior sd / f_a (heuristic: "
+                                                   "not calibrated for s3m24 or mixed tests); n_tests "
                                                    "< t where the arm has fewer tests"], float_format="%.4g")
     atomic_write_csv(ident, out_identified, note + [f"identified = P(deep group < {s.threshold} x baseline) >= "
                                                     f"{s.p_identify} (mean over its sides); for normal participants "
