@@ -40,7 +40,6 @@ def main(argv=None) -> int:
     ap.add_argument("--config", default=str(ROOT / "config" / "config.yaml"))
     args = ap.parse_args(argv)
 
-    from neckstrength.pipeline.common import model_directions  # noqa: F401 - same loaders as the pipeline
     from neckstrength.sequential.algorithms import SimulatedSet, StrengthGrid, sample_prior
     from neckstrength.wrench import BasisCache, solve
 

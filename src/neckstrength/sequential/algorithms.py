@@ -209,9 +209,11 @@ class SimulatedSet:
               progress: Callable[[str], None] | None = None) -> list["SimulatedSet"]:
         """The general simulated data set for candidates ``F`` and Algorithm 9's tables, one set per grid.
 
-        Two passes over the candidates (wrenches first, to fix each direction's wrench grid; then the
-        activations chunk by chunk, accumulated into ``A`` without holding the (N, K, m) array unless
-        ``keep_alpha``). The basis cache makes the second pass cheap.
+        One solve per candidate and direction (:func:`neckstrength.wrench.solve`, wrenches and the optimal
+        activations together, chunk by chunk); the activations are kept in single precision (the precision
+        of ``alpha`` with ``keep_alpha``) until every wrench is known, since each direction's wrench grid
+        spans that direction's smallest to largest wrench; then ``A`` is accumulated in double precision
+        and stored in single precision.
         """
         import time
 
@@ -224,8 +226,21 @@ class SimulatedSet:
         N, m = F.shape
         K = U.shape[0]
         iw = np.ones(N) if iw is None else np.asarray(iw, float)
-        w, _, status = solve(model, F, U, chunk_size=chunk, cache=cache, return_alpha=False,
-                                          n_threads=n_threads)
+        w = np.zeros((N, K))
+        status = np.zeros((N, K), dtype=np.int8)
+        alpha_all = np.zeros((N, K, m), dtype=np.float32)
+        for s in range(0, N, chunk):
+            e = min(N, s + chunk)
+            w[s:e], a, status[s:e] = solve(model, F[s:e], U, chunk_size=chunk, cache=cache, return_alpha=True,
+                                           n_threads=n_threads)
+            ok = status[s:e] == _OPT
+            a[~ok] = 0.0
+            if np.isnan(a).any():
+                np.nan_to_num(a, copy=False, nan=0.0)
+            alpha_all[s:e] = a
+            del a
+            if progress and N > chunk:
+                progress(f"[{model.name}] general simulated data set: {e} of {N} candidates ({time.time() - t0:.0f} s)")
         w = np.where(status == _OPT, w, 0.0)
         wedges = np.zeros((K, n_wbins + 1))
         wbin = np.zeros((N, K), dtype=np.int16)
@@ -244,23 +259,14 @@ class SimulatedSet:
         t1 = time.time()
         fbins = [g.index(F) for g in grids]
         As = [np.zeros((K, n_wbins + 1, m, g.n_bins)) for g in grids]
-        alpha_all = np.zeros((N, K, m), dtype=np.float32) if keep_alpha else None
-        for s in range(0, N, chunk):
-            e = min(N, s + chunk)
-            _, a, st = solve(model, F[s:e], U, chunk_size=chunk, cache=cache, return_alpha=True,
-                                          n_threads=n_threads)
-            a = np.where((st == _OPT)[..., None], np.nan_to_num(a, nan=0.0), 0.0)
-            if keep_alpha:
-                alpha_all[s:e] = a
-            for g, fb, A in zip(grids, fbins, As):
-                nb = g.n_bins
-                for i in range(K):
-                    idx = (wbin[s:e, i, None].astype(np.int64) * m + np.arange(m)[None, :]) * nb + fb[s:e]
-                    A[i] += np.bincount(idx.ravel(), weights=(iw[s:e, None] * a[:, i, :]).ravel(),
-                                        minlength=(n_wbins + 1) * m * nb).reshape(n_wbins + 1, m, nb)
+        for g, fb, A in zip(grids, fbins, As):
+            _accumulate_activations(A, alpha_all, wbin, fb, iw, chunk)
+        if not keep_alpha:
+            alpha_all = None
         meta = dict(meta or {})
         meta.update({"model": model.name, "n_candidates": int(N), "n_not_producible": int((status != _OPT).sum()),
                      "seconds_wrench": t1 - t0, "seconds_activation": time.time() - t1})
+        # seconds_wrench: the solves (wrenches and activations); seconds_activation: the tables
         if progress:
             progress(f"[{model.name}] general simulated data set: {N} candidates x {K} directions; wrenches "
                      f"{t1 - t0:.1f} s, activation tables {time.time() - t1:.1f} s "
@@ -291,6 +297,20 @@ class SimulatedSet:
         return cls([str(x) for x in z["directions"]], z["U"], z["F"], z["iw"], StrengthGrid(z["edges"]), z["fbin"],
                    z["w"], z["wedges"], z["wbin"], z["wcount"], z["A"], z["prior_pdf"],
                    z["alpha"] if "alpha" in z.files else None, json.loads(str(z["meta"])))
+
+
+def _accumulate_activations(A: np.ndarray, alpha: np.ndarray, wbin: np.ndarray, fbin: np.ndarray, iw: np.ndarray,
+                            chunk: int) -> None:
+    """``A[i, v, j, b] += sum_{k: wbin_ki = v, fbin_kj = b} iw_k alpha_kij`` (double precision sums)."""
+    K, nv, m, nb = A.shape
+    cols = np.arange(m)[None, :]
+    for s in range(0, alpha.shape[0], chunk):
+        e = min(alpha.shape[0], s + chunk)
+        fb = fbin[s:e].astype(np.int64) + cols * nb
+        for i in range(K):
+            idx = wbin[s:e, i, None].astype(np.int64) * (m * nb) + fb
+            A[i] += np.bincount(idx.ravel(), weights=(iw[s:e, None] * alpha[s:e, i, :]).ravel(),
+                                minlength=nv * m * nb).reshape(nv, m, nb)
 
 
 def _weighted_threshold(d: np.ndarray, iw: np.ndarray, q: float) -> float:
