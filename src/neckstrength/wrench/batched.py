@@ -347,40 +347,34 @@ class DirectionSolver:
 
     def _make_basis(self, bcols: np.ndarray, brows: np.ndarray, col: np.ndarray, f: np.ndarray):
         """Verify a basis (sorted basic columns and row logicals, per-column bound status ``col``)
-        and cache it as linear maps; returns the _Basis (or the cached equal one) or None."""
+        and cache it as linear maps; returns the _Basis (or the cached equal one) or None.
+
+        The numerics (:func:`neckstrength.wrench.simplex.make_basis`, compiled) are, in order: the
+        inverse of the basis matrix (1-norm condition number below ``MAX_COND``); the dual solution and
+        reduced costs, with the optimal signs up to ``DUAL_TOL`` relative to ``|y|_inf |A_j|_1`` (a
+        variable fixed at this ``f`` moves to the bound that keeps the basis dual feasible for every
+        ``f``); the basic solution as a linear map ``T f``; the primal checks with their tolerances
+        (``PRIMAL_TOL`` times the size of the terms), the weak-duality gap rule (``GAP_REL``) and the
+        dual bound ``dvec``.
+        """
         n, m = self.n, self.m
-        A = self.A
-        nb = len(bcols)
-        B = np.zeros((n, n))
-        B[:, :nb] = A[:, bcols]
-        B[brows, nb + np.arange(len(brows))] = -1.0     # row activity r = A z: [A, -I] (z, r) = 0
-        # numpy (not scipy) linear algebra: scipy ships its own OpenBLAS, whose threads fight
-        # numpy's for the cores right after the big matrix products
-        try:
-            Binv = np.linalg.inv(B)
-        except np.linalg.LinAlgError:
-            Binv = None
-        if Binv is None or not np.all(np.isfinite(Binv)) or \
-                np.abs(B).sum(0).max() * np.abs(Binv).sum(0).max() > MAX_COND:
+        bcols = np.ascontiguousarray(bcols, dtype=np.int64)
+        brows = np.ascontiguousarray(brows, dtype=np.int64)
+        if bcols.size + brows.size != n:
             self.stats.rejected_bases += 1
             return None
-        cB = np.zeros(n)
-        cB[:nb] = (bcols == m).astype(float)
-        y = Binv.T @ cB
-        c = np.zeros(m + 1)
-        c[m] = 1.0
-        d = c - y @ A                                     # reduced costs (maximisation)
-        # reduced costs of columns that y hardly touches are pure rounding: scale by |y|_inf |A_j|_1
-        tol = DUAL_TOL * (np.max(np.abs(y)) * self._Acol1 + c)
-        nonbasic = col != _BASIC
-        fixed = np.r_[self.lb * f == self.ub * f, False]
-        # a variable fixed at this f (f_j = 0 or lb_j = ub_j) may sit at either bound;
-        # choose the bound that keeps the basis dual feasible for every f
-        col = col.copy()
-        col[nonbasic & fixed & (d > 0)] = _UPPER
-        col[nonbasic & fixed & (d < 0)] = _LOWER
-        bad = nonbasic & (((col == _LOWER) & (d > tol)) | ((col == _UPPER) & (d < -tol)))
-        if col[m] == _UPPER or np.any(bad):
+        col = np.array(col, dtype=np.int64)
+        Binv = np.empty((n, n))
+        T = np.empty((n, m))
+        CW = np.empty((2 * n + 3, m))
+        dvec = np.empty(m)
+        if _simplex is not None:
+            ok, q, w_basic = _simplex.make_basis(self.A, self.lb, self.ub, self._Acol1, self._fscale, self._wscale,
+                                                 self._Rscale, self.b, bcols, brows, col, np.asarray(f, float),
+                                                 PRIMAL_TOL, DUAL_TOL, GAP_REL, MAX_COND, Binv, T, CW, dvec)
+        else:
+            ok, q, w_basic = self._make_basis_numpy(bcols, brows, col, f, Binv, T, CW, dvec)
+        if not ok:
             self.stats.rejected_bases += 1
             return None
         key = (bcols.tobytes(), brows.tobytes(), col.astype(np.int8).tobytes())
@@ -389,43 +383,8 @@ class DirectionSolver:
             self.stats.highs_known += 1
             return self._keys[key]
         self._last_new = True
-        # basic solution as a linear map of f: nonbasic x_j = s_j f_j, basic variables = T f
-        s = np.where(col[:m] == _UPPER, self.ub, self.lb)
-        s[col[:m] == _BASIC] = 0.0
-        T = Binv @ -(A[:, :m] * s[None, :])
-        if not np.all(np.isfinite(T)):
-            self.stats.rejected_bases += 1
-            return None
-        absT = np.abs(T)
-        kx = np.flatnonzero(bcols < m)                  # basic muscle forces: lb_j f_j <= x_j <= ub_j f_j
-        J = bcols[kx]
-        E = np.zeros((kx.size, m))
-        E[np.arange(kx.size), J] = 1.0
-        tolx = PRIMAL_TOL * (absT[kx] + E + self._fscale)
-        parts = [T[kx] - self.lb[J, None] * E + tolx, self.ub[J, None] * E - T[kx] + tolx]
-        kw = np.flatnonzero(bcols == m)
-        w_basic = kw.size == 1
-        tw = T[kw[0]] if w_basic else np.zeros(m)
-        if w_basic:                                     # w >= 0
-            parts.append((tw + PRIMAL_TOL * (absT[kw[0]] + self._wscale))[None, :])
-        # weak duality: w*(f) <= sum_j max(d_j lb_j f_j, d_j ub_j f_j) for any y with d_w <= 0;
-        # a reduced cost of the wrong sign (within DUAL_TOL) at a nonbasic bound makes the basis
-        # suboptimal by at most gap . f: accept f only where that is below GAP_REL * w
-        dx = d[:m]
-        dvec = np.maximum(dx * self.lb, dx * self.ub)
-        gap = np.where(col[:m] == _BASIC, 0.0, dvec - dx * s)
-        if np.any(gap > 0):
-            parts.append((GAP_REL * tw - gap)[None, :])
-        if brows.size:                                  # basic row activities must be 0
-            t = T[nb:]
-            tolr = PRIMAL_TOL * (np.abs(t) + self._Rscale[brows] + np.abs(self.b[brows, None]) * self._wscale)
-            parts += [t + tolr, -t + tolr]
-        C = np.vstack(parts)
-        q = C.shape[0]
-        CW = np.empty((q + 1, m))
-        CW[:q] = C
-        CW[q] = tw
-        basis = _Basis(key, CW, q, w_basic, dvec, col, np.r_[bcols, m + 1 + brows], T)
+        CW = CW[:q + 1].copy()
+        basis = _Basis(key, CW, q, bool(w_basic), dvec, col, np.r_[bcols, m + 1 + brows], T)
         basis.Binv = Binv                               # columns in the order of basis.basic
         self._keys[key] = basis
         self.bases.append(basis)
@@ -442,6 +401,70 @@ class DirectionSolver:
                 return None
         self.stats.bases = len(self.bases)
         return basis
+
+    def _make_basis_numpy(self, bcols, brows, col, f, Binv, T, CW, dvec):
+        """:func:`neckstrength.wrench.simplex.make_basis` in numpy (without numba; the tests' reference)."""
+        n, m = self.n, self.m
+        A = self.A
+        nb = len(bcols)
+        B = np.zeros((n, n))
+        B[:, :nb] = A[:, bcols]
+        B[brows, nb + np.arange(len(brows))] = -1.0     # row activity r = A z: [A, -I] (z, r) = 0
+        try:
+            Bi = np.linalg.inv(B)
+        except np.linalg.LinAlgError:
+            return False, 0, False
+        if not np.all(np.isfinite(Bi)) or np.abs(B).sum(0).max() * np.abs(Bi).sum(0).max() > MAX_COND:
+            return False, 0, False
+        Binv[:] = Bi
+        cB = np.zeros(n)
+        cB[:nb] = (bcols == m).astype(float)
+        y = Bi.T @ cB
+        c = np.zeros(m + 1)
+        c[m] = 1.0
+        d = c - y @ A                                     # reduced costs (maximisation)
+        tol = DUAL_TOL * (np.max(np.abs(y)) * self._Acol1 + c)
+        nonbasic = col != _BASIC
+        fixed = np.r_[self.lb * f == self.ub * f, False]
+        col[nonbasic & fixed & (d > 0)] = _UPPER
+        col[nonbasic & fixed & (d < 0)] = _LOWER
+        bad = nonbasic & (((col == _LOWER) & (d > tol)) | ((col == _UPPER) & (d < -tol)))
+        if col[m] == _UPPER or np.any(bad):
+            return False, 0, False
+        s = np.where(col[:m] == _UPPER, self.ub, self.lb)
+        s[col[:m] == _BASIC] = 0.0
+        T[:] = Bi @ -(A[:, :m] * s[None, :])
+        if not np.all(np.isfinite(T)):
+            return False, 0, False
+        absT = np.abs(T)
+        kx = np.flatnonzero(bcols < m)                  # basic muscle forces: lb_j f_j <= x_j <= ub_j f_j
+        J = bcols[kx]
+        E = np.zeros((kx.size, m))
+        E[np.arange(kx.size), J] = 1.0
+        tolx = PRIMAL_TOL * (absT[kx] + E + self._fscale)
+        parts = [T[kx] - self.lb[J, None] * E + tolx, self.ub[J, None] * E - T[kx] + tolx]
+        kw = np.flatnonzero(bcols == m)
+        w_basic = kw.size == 1
+        tw = T[kw[0]] if w_basic else np.zeros(m)
+        if w_basic:                                     # w >= 0
+            parts.append((tw + PRIMAL_TOL * (absT[kw[0]] + self._wscale))[None, :])
+        # weak duality: w*(f) <= sum_j max(d_j lb_j f_j, d_j ub_j f_j) for any y with d_w <= 0;
+        # a reduced cost of the wrong sign (within DUAL_TOL) at a nonbasic bound makes the basis
+        # suboptimal by at most gap . f: accept f only where that is below GAP_REL * w
+        dx = d[:m]
+        dvec[:] = np.maximum(dx * self.lb, dx * self.ub)
+        gap = np.where(col[:m] == _BASIC, 0.0, dvec - dx * s)
+        if np.any(gap > 0):
+            parts.append((GAP_REL * tw - gap)[None, :])
+        if brows.size:                                  # basic row activities must be 0
+            t = T[nb:]
+            tolr = PRIMAL_TOL * (np.abs(t) + self._Rscale[brows] + np.abs(self.b[brows, None]) * self._wscale)
+            parts += [t + tolr, -t + tolr]
+        C = np.vstack(parts)
+        q = C.shape[0]
+        CW[:q] = C
+        CW[q] = tw
+        return True, q, w_basic
 
     def _add_farkas(self, dual_ray, f: np.ndarray):
         """Cache HiGHS's dual ray as an infeasibility test linear in f; returns it or None."""
@@ -635,6 +658,7 @@ class DirectionSolver:
         used = list(self.bases)                   # src[i] >= 0: answered by used[src[i]]
         src = np.full(N, -1, dtype=np.int64)      # -1: open, -2: HiGHS or certificate
         open_ = np.ones(N, bool)
+        alpha_done = np.zeros(N, bool)            # activations already written (compiled stage 1)
         ubest = np.full(N, np.inf)                # best (smallest) cached dual bound per open row
         floor = ZERO_REL * max(1.0, fmax * m)     # >= the 'zero' threshold of every row
         simplex = self.simplex
@@ -694,6 +718,18 @@ class DirectionSolver:
                     V = (Fs[s0:s0 + step] if rem.size == N else Fs[r]) @ Dk
                     label[r] = V.argmin(axis=1)       # int16: radix sort below
                 lab = label[rem]
+                if single and simplex:
+                    # compiled: every row against its own best-ranked basis (and its activations)
+                    ok = self._check_compiled(F, rem, label, used[:kk], w, alpha, alpha_done)
+                    g = rem[ok]
+                    src[g] = label[g]
+                    open_[g] = False
+                    counts = np.bincount(label[g], minlength=kk)
+                    for bi in np.flatnonzero(counts):
+                        used[bi].hits += counts[bi]
+                        used[bi].total += int(counts[bi])
+                    rem = rem[~ok]
+                    continue
                 order = np.argsort(lab, kind="stable")
                 counts = np.bincount(lab, minlength=kk)
                 ends = np.cumsum(counts)
@@ -815,9 +851,54 @@ class DirectionSolver:
             w[zero] = 0.0
             status[zero] = _ZERO
         if return_alpha:
-            for bi in np.unique(src[src >= 0]):
-                g = np.flatnonzero(src == bi)
+            rest = (src >= 0) & ~alpha_done
+            for bi in np.unique(src[rest]):
+                g = np.flatnonzero(rest & (src == bi))
                 alpha[g] = self._alpha(used[bi], F[g])
+
+    def _alpha_map(self, bb: _Basis) -> np.ndarray:
+        """``P`` (m x m) with ``x = P f`` (forces of the basic solution), built once per basis."""
+        if bb.P is None:
+            m = self.m
+            col = bb.status[:m]
+            P = np.diag(np.where(col == _UPPER, self.ub, self.lb)).astype(float)
+            for k, j in enumerate(bb.basic):
+                if j < m:
+                    P[j] = bb.T[k]
+            bb.P = P
+        return bb.P
+
+    def _check_compiled(self, F, rows, label, bases, w, alpha, alpha_done) -> np.ndarray:
+        """:meth:`_try` of every row in ``rows`` against ``bases[label[row]]`` in compiled code; writes
+        ``w`` (and ``alpha``) of the rows that pass and returns the mask of those rows."""
+        k, m = len(bases), self.m
+        qmax = max(bb.q for bb in bases)
+        CW3 = np.zeros((k, qmax + 1, m))
+        qv = np.empty(k, dtype=np.int64)
+        wb = np.empty(k, dtype=np.bool_)
+        want = alpha is not None
+        P3 = np.empty((k, m, m)) if want else np.empty((1, 1, 1))
+        isb = np.zeros((k, m), dtype=np.bool_)
+        for i, bb in enumerate(bases):
+            CW3[i, :bb.q] = bb.CW[:bb.q]
+            CW3[i, bb.q] = bb.CW[bb.q]
+            qv[i] = bb.q
+            wb[i] = bb.w_basic
+            if want:
+                P3[i] = self._alpha_map(bb)
+                isb[i] = bb.status[:m] == _BASIC
+        R = rows.size
+        ok = np.empty(R, dtype=np.bool_)
+        ww = np.empty(R)
+        aa = np.empty((R if want else 1, m))
+        _simplex.check_rows(F, rows.astype(np.int64), label, CW3, qv, wb, P3, isb, self.lb, self.ub, want, ok, ww,
+                            aa)
+        g = rows[ok]
+        w[g] = ww[ok]
+        if want:
+            alpha[g] = aa[ok]
+            alpha_done[g] = True
+        return ok
 
     def _try(self, bb: _Basis, F: np.ndarray, rows: np.ndarray):
         """Positions in ``rows`` of the rows of ``F`` for which ``bb`` is optimal, and their w."""
@@ -836,15 +917,7 @@ class DirectionSolver:
 
     def _alpha(self, bb: _Basis, F: np.ndarray) -> np.ndarray:
         """Activations of the basic solution (``lb`` where ``f = 0``, clipped as in maxwrench)."""
-        if bb.P is None:
-            m = self.m
-            col = bb.status[:m]
-            P = np.diag(np.where(col == _UPPER, self.ub, self.lb)).astype(float)
-            for k, j in enumerate(bb.basic):
-                if j < m:
-                    P[j] = bb.T[k]
-            bb.P = P
-        X = F @ bb.P.T
+        X = F @ self._alpha_map(bb).T
         with np.errstate(divide="ignore", invalid="ignore"):
             alpha = np.where(F > 0, X / np.where(F > 0, F, 1.0), self.lb[None, :])
         return np.clip(alpha, self.lb[None, :], self.ub[None, :])

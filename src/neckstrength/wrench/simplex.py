@@ -453,3 +453,177 @@ def solve_rows(A, lb, ub, Acol1, wscale, Rscale, absb, F, rows, start, SB, SS, S
             out_basic[t, k] = basic[k]
         for j in range(mp1):
             out_status[t, j] = status[j]
+
+
+@njit(cache=True, nogil=True, fastmath=_FM)
+def check_rows(F, rows, label, CW3, qv, wbasic, P3, isb, lb, ub, want_alpha, out_ok, out_w, out_alpha):
+    """The cached-basis test of ``DirectionSolver._try`` for many rows at once, each against its own basis.
+
+    Row ``rows[t]`` of ``F`` is checked against basis ``label[rows[t]]``: ``CW3[b, :qv[b]] @ f >= 0``
+    (primal feasibility with the tolerances folded in); where it holds, ``out_w[t] = max(CW3[b, qv[b]] @ f,
+    0)`` (0 if ``w`` is not basic) and, with ``want_alpha``, the activations of the basic solution as
+    ``DirectionSolver._alpha`` computes them (``x = P f``; ``x_j / f_j``, ``lb_j`` where ``f_j = 0``,
+    clipped to the bounds; ``isb[b, j]``: row ``j`` of ``P3[b]`` is a basic row, else ``P3[b, j, j] f_j``).
+    """
+    m = F.shape[1]
+    for t in range(rows.shape[0]):
+        r = rows[t]
+        b = label[r]
+        q = qv[b]
+        ok = True
+        for c in range(q):
+            v = 0.0
+            for j in range(m):
+                v += CW3[b, c, j] * F[r, j]
+            if not v >= 0.0:
+                ok = False
+                break
+        out_ok[t] = ok
+        if not ok:
+            continue
+        if wbasic[b]:
+            v = 0.0
+            for j in range(m):
+                v += CW3[b, q, j] * F[r, j]
+            out_w[t] = max(v, 0.0)
+        else:
+            out_w[t] = 0.0
+        if want_alpha:
+            for j in range(m):
+                fj = F[r, j]
+                if isb[b, j]:
+                    x = 0.0
+                    for i in range(m):
+                        x += P3[b, j, i] * F[r, i]
+                else:
+                    x = P3[b, j, j] * fj
+                if fj > 0.0:
+                    a = x / fj
+                else:
+                    a = lb[j]
+                out_alpha[t, j] = min(max(a, lb[j]), ub[j])
+
+
+@njit(cache=True, nogil=True, fastmath=_FM)
+def make_basis(A, lb, ub, Acol1, fscale, wscale, Rscale, b, bcols, brows, col, f, primal_tol, dual_tol, gap_rel,
+               max_cond, Binv, T, CW, dvec):
+    """The verification and linear maps of ``DirectionSolver._make_basis`` in compiled code.
+
+    ``bcols``/``brows``: sorted basic columns and row logicals; ``col`` (m + 1): per-column bound status,
+    adjusted in place (variables fixed at this ``f`` move to the bound that keeps the basis dual feasible).
+    Writes ``Binv`` (inverse of the basis matrix, columns in the order ``bcols``, ``brows``), ``T`` (basic
+    variables = ``T f``), the checks ``CW[:q]`` (feasible iff ``CW[:q] @ f >= 0``), ``CW[q]`` (``f -> w``)
+    and ``dvec`` (the dual bound ``w*(f) <= dvec . f``). Returns ``(ok, q, w_basic)``; ``ok`` is False for a
+    singular or ill-conditioned basis or one that is not dual feasible (``dual_tol`` relative to
+    ``|y|_inf |A_j|_1``).
+    """
+    n, mp1 = A.shape
+    m = mp1 - 1
+    nb = bcols.shape[0]
+    B = np.zeros((n, n))
+    for k in range(nb):
+        for i in range(n):
+            B[i, k] = A[i, bcols[k]]
+    for k in range(brows.shape[0]):
+        B[brows[k], nb + k] = -1.0
+    M = np.empty((n, n))
+    if not _invert(B, Binv, M):
+        return False, 0, False
+    nB = 0.0
+    nI = 0.0
+    for k in range(n):
+        s1 = 0.0
+        s2 = 0.0
+        for i in range(n):
+            s1 += abs(B[i, k])
+            s2 += abs(Binv[i, k])
+        nB = max(nB, s1)
+        nI = max(nI, s2)
+    if not np.isfinite(nI) or nB * nI > max_cond:
+        return False, 0, False
+    y = np.zeros(n)
+    for k in range(nb):
+        if bcols[k] == m:
+            for i in range(n):
+                y[i] += Binv[k, i]
+    ymax = 0.0
+    for i in range(n):
+        ymax = max(ymax, abs(y[i]))
+    d = np.empty(mp1)
+    for j in range(mp1):
+        t = 0.0
+        for i in range(n):
+            t += y[i] * A[i, j]
+        d[j] = (1.0 if j == m else 0.0) - t
+    for j in range(mp1):
+        if col[j] == BASIC:
+            continue
+        fixed = j < m and lb[j] * f[j] == ub[j] * f[j]
+        if fixed:
+            if d[j] > 0:
+                col[j] = UPPER
+            elif d[j] < 0:
+                col[j] = LOWER
+        tol = dual_tol * (ymax * Acol1[j] + (1.0 if j == m else 0.0))
+        if (col[j] == LOWER and d[j] > tol) or (col[j] == UPPER and d[j] < -tol):
+            return False, 0, False
+    if col[m] == UPPER:
+        return False, 0, False
+    s = np.empty(m)
+    for j in range(m):
+        s[j] = 0.0 if col[j] == BASIC else (ub[j] if col[j] == UPPER else lb[j])
+    for k in range(n):
+        for j in range(m):
+            t = 0.0
+            for i in range(n):
+                t += Binv[k, i] * -(A[i, j] * s[j])
+            if not np.isfinite(t):
+                return False, 0, False
+            T[k, j] = t
+    q = 0
+    for side in range(2):                               # lb_j f_j <= x_j <= ub_j f_j, lower rows first
+        for k in range(nb):
+            J = bcols[k]
+            if J >= m:
+                continue
+            for j in range(m):
+                e = 1.0 if j == J else 0.0
+                tolx = primal_tol * (abs(T[k, j]) + e + fscale[j])
+                if side == 0:
+                    CW[q, j] = T[k, j] - lb[J] * e + tolx
+                else:
+                    CW[q, j] = ub[J] * e - T[k, j] + tolx
+            q += 1
+    kw = -1
+    nw = 0
+    for k in range(nb):
+        if bcols[k] == m:
+            kw = k
+            nw += 1
+    w_basic = nw == 1
+    if w_basic:                                         # w >= 0
+        for j in range(m):
+            CW[q, j] = T[kw, j] + primal_tol * (abs(T[kw, j]) + wscale[j])
+        q += 1
+    anygap = False
+    for j in range(m):
+        dvec[j] = max(d[j] * lb[j], d[j] * ub[j])
+        g = 0.0 if col[j] == BASIC else dvec[j] - d[j] * s[j]
+        if g > 0:
+            anygap = True
+    if anygap:
+        for j in range(m):
+            g = 0.0 if col[j] == BASIC else dvec[j] - d[j] * s[j]
+            CW[q, j] = gap_rel * (T[kw, j] if w_basic else 0.0) - g
+        q += 1
+    for side in range(2):                               # basic row activities are 0
+        for k in range(brows.shape[0]):
+            r = brows[k]
+            for j in range(m):
+                t = T[nb + k, j]
+                tolr = primal_tol * (abs(t) + Rscale[r, j] + abs(b[r]) * wscale[j])
+                CW[q, j] = (t if side == 0 else -t) + tolr
+            q += 1
+    for j in range(m):
+        CW[q, j] = T[kw, j] if w_basic else 0.0
+    return True, q, w_basic
