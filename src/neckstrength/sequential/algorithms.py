@@ -209,11 +209,11 @@ class SimulatedSet:
               progress: Callable[[str], None] | None = None) -> list["SimulatedSet"]:
         """The general simulated data set for candidates ``F`` and Algorithm 9's tables, one set per grid.
 
-        One solve per candidate and direction (:func:`neckstrength.wrench.solve`, wrenches and the optimal
-        activations together, chunk by chunk); the activations are kept in single precision (the precision
-        of ``alpha`` with ``keep_alpha``) until every wrench is known, since each direction's wrench grid
-        spans that direction's smallest to largest wrench; then ``A`` is accumulated in double precision
-        and stored in single precision.
+        One solve per candidate and direction (:func:`neckstrength.wrench.solve`: the wrench and the optimal
+        activations together), direction by direction (``n_threads`` directions at a time): once all the
+        wrenches of a direction are known its geometric wrench grid is fixed, and its activations go straight
+        into ``A`` (double precision sums, stored in single precision); the (N, K, m) activations are held
+        only with ``keep_alpha``.
         """
         import time
 
@@ -226,50 +226,54 @@ class SimulatedSet:
         N, m = F.shape
         K = U.shape[0]
         iw = np.ones(N) if iw is None else np.asarray(iw, float)
+        fbins = [g.index(F) for g in grids]
+        As = [np.zeros((K, n_wbins + 1, m, g.n_bins)) for g in grids]
         w = np.zeros((N, K))
         status = np.zeros((N, K), dtype=np.int8)
-        alpha_all = np.zeros((N, K, m), dtype=np.float32)
-        for s in range(0, N, chunk):
-            e = min(N, s + chunk)
-            w[s:e], a, status[s:e] = solve(model, F[s:e], U, chunk_size=chunk, cache=cache, return_alpha=True,
-                                           n_threads=n_threads)
-            ok = status[s:e] == _OPT
-            a[~ok] = 0.0
-            if np.isnan(a).any():
-                np.nan_to_num(a, copy=False, nan=0.0)
-            alpha_all[s:e] = a
-            del a
-            if progress and N > chunk:
-                progress(f"[{model.name}] general simulated data set: {e} of {N} candidates ({time.time() - t0:.0f} s)")
-        w = np.where(status == _OPT, w, 0.0)
         wedges = np.zeros((K, n_wbins + 1))
         wbin = np.zeros((N, K), dtype=np.int16)
         wcount = np.zeros((K, n_wbins + 1))
-        for i in range(K):
-            pos = w[:, i] > 0
-            if pos.any():
-                lo, hi = w[pos, i].min() * (1 - 1e-9), w[pos, i].max() * (1 + 1e-9)
-                wedges[i] = np.geomspace(lo, hi if hi > lo else lo * 1.001, n_wbins + 1)
-            else:
-                wedges[i] = np.geomspace(1.0, 2.0, n_wbins + 1)
-            v = np.clip(np.searchsorted(wedges[i], w[:, i], side="right"), 1, n_wbins)
-            v[~pos] = 0
-            wbin[:, i] = v
-            wcount[i] = np.bincount(v, weights=iw, minlength=n_wbins + 1)
-        t1 = time.time()
-        fbins = [g.index(F) for g in grids]
-        As = [np.zeros((K, n_wbins + 1, m, g.n_bins)) for g in grids]
-        for g, fb, A in zip(grids, fbins, As):
-            _accumulate_activations(A, alpha_all, wbin, fb, iw, chunk)
-        if not keep_alpha:
-            alpha_all = None
+        alpha_all = np.zeros((N, K, m), dtype=np.float32) if keep_alpha else None
+        t_tab = 0.0
+        step = max(1, int(n_threads))
+        for i0 in range(0, K, step):
+            ii = list(range(i0, min(K, i0 + step)))
+            wi, a, st = solve(model, F, U[ii], chunk_size=chunk, cache=cache, return_alpha=True, n_threads=n_threads)
+            t = time.time()
+            ok = st == _OPT
+            a[~ok] = 0.0
+            if np.isnan(a).any():
+                np.nan_to_num(a, copy=False, nan=0.0)
+            for c, i in enumerate(ii):
+                w[:, i] = np.where(ok[:, c], wi[:, c], 0.0)
+                status[:, i] = st[:, c]
+                pos = w[:, i] > 0
+                if pos.any():
+                    lo, hi = w[pos, i].min() * (1 - 1e-9), w[pos, i].max() * (1 + 1e-9)
+                    wedges[i] = np.geomspace(lo, hi if hi > lo else lo * 1.001, n_wbins + 1)
+                else:
+                    wedges[i] = np.geomspace(1.0, 2.0, n_wbins + 1)
+                v = np.clip(np.searchsorted(wedges[i], w[:, i], side="right"), 1, n_wbins)
+                v[~pos] = 0
+                wbin[:, i] = v
+                wcount[i] = np.bincount(v, weights=iw, minlength=n_wbins + 1)
+                for g, fb, A in zip(grids, fbins, As):
+                    _accumulate_activations(A[i], a[:, c, :], v, fb, iw, chunk)
+                if keep_alpha:
+                    alpha_all[:, i] = a[:, c, :]
+            del a
+            t_tab += time.time() - t
+            if progress and K > step:
+                progress(f"[{model.name}] general simulated data set: {ii[-1] + 1} of {K} directions "
+                         f"({time.time() - t0:.0f} s)")
+        t1 = time.time() - t_tab
         meta = dict(meta or {})
         meta.update({"model": model.name, "n_candidates": int(N), "n_not_producible": int((status != _OPT).sum()),
-                     "seconds_wrench": t1 - t0, "seconds_activation": time.time() - t1})
+                     "seconds_wrench": t1 - t0, "seconds_activation": t_tab})
         # seconds_wrench: the solves (wrenches and activations); seconds_activation: the tables
         if progress:
-            progress(f"[{model.name}] general simulated data set: {N} candidates x {K} directions; wrenches "
-                     f"{t1 - t0:.1f} s, activation tables {time.time() - t1:.1f} s "
+            progress(f"[{model.name}] general simulated data set: {N} candidates x {K} directions; solves "
+                     f"{t1 - t0:.1f} s, tables {t_tab:.1f} s "
                      f"({meta['n_not_producible']} not producible)")
         out = []
         for g, fb, A in zip(grids, fbins, As):
@@ -301,16 +305,14 @@ class SimulatedSet:
 
 def _accumulate_activations(A: np.ndarray, alpha: np.ndarray, wbin: np.ndarray, fbin: np.ndarray, iw: np.ndarray,
                             chunk: int) -> None:
-    """``A[i, v, j, b] += sum_{k: wbin_ki = v, fbin_kj = b} iw_k alpha_kij`` (double precision sums)."""
-    K, nv, m, nb = A.shape
-    cols = np.arange(m)[None, :]
+    """One direction: ``A[v, j, b] += sum_{k: wbin_k = v, fbin_kj = b} iw_k alpha_kj`` (double precision sums)."""
+    nv, m, nb = A.shape
+    cols = np.arange(m)[None, :] * nb
     for s in range(0, alpha.shape[0], chunk):
         e = min(alpha.shape[0], s + chunk)
-        fb = fbin[s:e].astype(np.int64) + cols * nb
-        for i in range(K):
-            idx = wbin[s:e, i, None].astype(np.int64) * (m * nb) + fb
-            A[i] += np.bincount(idx.ravel(), weights=(iw[s:e, None] * alpha[s:e, i, :]).ravel(),
-                                minlength=nv * m * nb).reshape(nv, m, nb)
+        idx = wbin[s:e, None].astype(np.int64) * (m * nb) + (fbin[s:e] + cols)
+        A += np.bincount(idx.ravel(), weights=(iw[s:e, None] * alpha[s:e]).ravel(),
+                         minlength=nv * m * nb).reshape(nv, m, nb)
 
 
 def _weighted_threshold(d: np.ndarray, iw: np.ndarray, q: float) -> float:
