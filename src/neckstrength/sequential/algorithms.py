@@ -306,6 +306,10 @@ class SimulatedSet:
 def _accumulate_activations(A: np.ndarray, alpha: np.ndarray, wbin: np.ndarray, fbin: np.ndarray, iw: np.ndarray,
                             chunk: int) -> None:
     """One direction: ``A[v, j, b] += sum_{k: wbin_k = v, fbin_kj = b} iw_k alpha_kj`` (double precision sums)."""
+    if _accumulate_compiled is not None:
+        _accumulate_compiled(A, np.ascontiguousarray(alpha), np.ascontiguousarray(wbin), np.ascontiguousarray(fbin),
+                             np.ascontiguousarray(iw, dtype=float))
+        return
     nv, m, nb = A.shape
     cols = np.arange(m)[None, :] * nb
     for s in range(0, alpha.shape[0], chunk):
@@ -313,6 +317,21 @@ def _accumulate_activations(A: np.ndarray, alpha: np.ndarray, wbin: np.ndarray, 
         idx = wbin[s:e, None].astype(np.int64) * (m * nb) + (fbin[s:e] + cols)
         A += np.bincount(idx.ravel(), weights=(iw[s:e, None] * alpha[s:e]).ravel(),
                          minlength=nv * m * nb).reshape(nv, m, nb)
+
+
+try:  # compiled accumulation (numba, a dependency of the solver); the bincount loop above otherwise
+    from numba import njit
+
+    @njit(cache=True, nogil=True)
+    def _accumulate_compiled(A, alpha, wbin, fbin, iw):  # pragma: no cover - compiled
+        for k in range(alpha.shape[0]):
+            v = wbin[k]
+            for j in range(alpha.shape[1]):
+                a = alpha[k, j]
+                if a != 0.0:
+                    A[v, j, fbin[k, j]] += iw[k] * a
+except ImportError:  # pragma: no cover
+    _accumulate_compiled = None
 
 
 def _weighted_threshold(d: np.ndarray, iw: np.ndarray, q: float) -> float:

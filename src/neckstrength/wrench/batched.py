@@ -202,7 +202,7 @@ class _Basis:
     the basis is optimal. ``P`` (m x m): ``x = P @ f`` (forces), built lazily.
     """
 
-    __slots__ = ("key", "CW", "q", "w_basic", "dvec", "status", "basic", "T", "P", "hits", "total", "Binv")
+    __slots__ = ("key", "CW", "q", "w_basic", "dvec", "status", "basic", "T", "P", "hits", "total", "Binv", "pad")
 
     def __init__(self, key, CW, q, w_basic, dvec, status, basic, T):
         self.key = key
@@ -214,6 +214,7 @@ class _Basis:
         self.basic = basic        # basic variable indices (structural < m+1, row logicals m+1+i)
         self.T = T                # basic variables = T @ f
         self.P = None
+        self.pad = None           # padded arrays for the compiled checks (DirectionSolver._padded)
         self.hits = 1.0           # recent hits (decayed per call); the HiGHS solve that found it
         self.total = 0            # all hits
 
@@ -720,14 +721,7 @@ class DirectionSolver:
                 lab = label[rem]
                 if single and simplex:
                     # compiled: every row against its own best-ranked basis (and its activations)
-                    ok = self._check_compiled(F, rem, label, used[:kk], w, alpha, alpha_done)
-                    g = rem[ok]
-                    src[g] = label[g]
-                    open_[g] = False
-                    counts = np.bincount(label[g], minlength=kk)
-                    for bi in np.flatnonzero(counts):
-                        used[bi].hits += counts[bi]
-                        used[bi].total += int(counts[bi])
+                    ok = self._check_compiled(F, rem, lab, used[:kk], 0, w, alpha, alpha_done, src, open_)
                     rem = rem[~ok]
                     continue
                 order = np.argsort(lab, kind="stable")
@@ -793,8 +787,10 @@ class DirectionSolver:
                     thr = ubest[rest]
                     cand = u <= thr + TIE_REL * (np.abs(thr) + floor)
                     ubest[rest] = np.minimum(thr, u)
-                    for bi in np.unique(lab[cand]):
-                        self.stats.cache_hits += accept(i0 + int(bi), rest[cand & (lab == bi)])
+                    if cand.any():
+                        ok = self._check_compiled(F, rest[cand], lab[cand], new, i0, w, alpha, alpha_done, src,
+                                                  open_)
+                        self.stats.cache_hits += int(ok.sum())
             rem = np.concatenate(left) if left else rem[:0]
         # HiGHS for the misses; each new basis / certificate is checked against the open rows.
         # Lean mode, when a big cache still misses most rows (many muscles, scattered candidates):
@@ -868,36 +864,46 @@ class DirectionSolver:
             bb.P = P
         return bb.P
 
-    def _check_compiled(self, F, rows, label, bases, w, alpha, alpha_done) -> np.ndarray:
-        """:meth:`_try` of every row in ``rows`` against ``bases[label[row]]`` in compiled code; writes
-        ``w`` (and ``alpha``) of the rows that pass and returns the mask of those rows."""
-        k, m = len(bases), self.m
-        qmax = max(bb.q for bb in bases)
-        CW3 = np.zeros((k, qmax + 1, m))
-        qv = np.empty(k, dtype=np.int64)
-        wb = np.empty(k, dtype=np.bool_)
+    def _padded(self, bb: _Basis):
+        """``bb``'s checks and map to ``w`` padded to ``2 n + 3`` rows, ``P`` and its basic rows (built once)."""
+        if bb.pad is None:
+            m = self.m
+            CW = np.zeros((2 * self.n + 3, m))
+            CW[:bb.q] = bb.CW[:bb.q]
+            CW[-1] = bb.CW[bb.q]
+            bb.pad = (CW, self._alpha_map(bb), bb.status[:m] == _BASIC)
+        return bb.pad
+
+    def _check_compiled(self, F, rows, lab, bases, offset, w, alpha, alpha_done, src, open_) -> np.ndarray:
+        """:meth:`_try` of every row ``rows[t]`` against ``bases[lab[t]]`` in compiled code: the rows that
+        pass get ``w`` (and ``alpha``), ``src = offset + lab`` and are closed; returns their mask."""
+        k = len(bases)
+        pads = [self._padded(bb) for bb in bases]
+        CW3 = np.stack([p[0] for p in pads])
+        qv = np.array([bb.q for bb in bases], dtype=np.int64)
+        wb = np.array([bb.w_basic for bb in bases], dtype=np.bool_)
+        # the map to w sits in the last padded row: move it to row q of each basis
+        CW3[np.arange(k), qv] = CW3[:, -1]
         want = alpha is not None
-        P3 = np.empty((k, m, m)) if want else np.empty((1, 1, 1))
-        isb = np.zeros((k, m), dtype=np.bool_)
-        for i, bb in enumerate(bases):
-            CW3[i, :bb.q] = bb.CW[:bb.q]
-            CW3[i, bb.q] = bb.CW[bb.q]
-            qv[i] = bb.q
-            wb[i] = bb.w_basic
-            if want:
-                P3[i] = self._alpha_map(bb)
-                isb[i] = bb.status[:m] == _BASIC
+        P3 = np.stack([p[1] for p in pads]) if want else np.empty((1, 1, 1))
+        isb = np.stack([p[2] for p in pads])
         R = rows.size
         ok = np.empty(R, dtype=np.bool_)
         ww = np.empty(R)
-        aa = np.empty((R if want else 1, m))
-        _simplex.check_rows(F, rows.astype(np.int64), label, CW3, qv, wb, P3, isb, self.lb, self.ub, want, ok, ww,
-                            aa)
+        aa = np.empty((R if want else 1, self.m))
+        lab = np.ascontiguousarray(lab, dtype=np.int64)
+        _simplex.check_rows(F, rows.astype(np.int64), lab, CW3, qv, wb, P3, isb, self.lb, self.ub, want, ok, ww, aa)
         g = rows[ok]
         w[g] = ww[ok]
         if want:
             alpha[g] = aa[ok]
             alpha_done[g] = True
+        src[g] = offset + lab[ok]
+        open_[g] = False
+        counts = np.bincount(lab[ok], minlength=k)
+        for bi in np.flatnonzero(counts):
+            bases[bi].hits += counts[bi]
+            bases[bi].total += int(counts[bi])
         return ok
 
     def _try(self, bb: _Basis, F: np.ndarray, rows: np.ndarray):

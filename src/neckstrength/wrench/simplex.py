@@ -44,40 +44,43 @@ LOWER, BASIC, UPPER = 0, 1, 2
 
 @njit(cache=True, nogil=True, fastmath=_FM)
 def _invert(B, out, M):
-    """Gauss-Jordan inverse with partial pivoting (``M``: workspace); False if (numerically) singular."""
+    """In-place Gauss-Jordan inverse of ``B`` into ``out`` with partial (row) pivoting; False if
+    (numerically) singular. ``M``: workspace (its first row holds the row interchanges)."""
     n = B.shape[0]
-    M[:, :] = B
-    for i in range(n):
-        for j in range(n):
-            out[i, j] = 1.0 if i == j else 0.0
+    out[:, :] = B
     for c in range(n):
         p = c
-        big = abs(M[c, c])
+        big = abs(out[c, c])
         for r in range(c + 1, n):
-            if abs(M[r, c]) > big:
-                big = abs(M[r, c])
+            if abs(out[r, c]) > big:
+                big = abs(out[r, c])
                 p = r
         if big == 0.0 or not np.isfinite(big):
             return False
+        M[0, c] = p
         if p != c:
             for j in range(n):
-                t = M[c, j]
-                M[c, j] = M[p, j]
-                M[p, j] = t
                 t = out[c, j]
                 out[c, j] = out[p, j]
                 out[p, j] = t
-        piv = M[c, c]
+        inv = 1.0 / out[c, c]
+        out[c, c] = 1.0
         for j in range(n):
-            M[c, j] /= piv
-            out[c, j] /= piv
+            out[c, j] *= inv
         for r in range(n):
             if r != c:
-                g = M[r, c]
+                g = out[r, c]
                 if g != 0.0:
+                    out[r, c] = 0.0
                     for j in range(n):
-                        M[r, j] -= g * M[c, j]
                         out[r, j] -= g * out[c, j]
+    for c in range(n - 1, -1, -1):       # undo the row interchanges as column interchanges
+        p = int(M[0, c])
+        if p != c:
+            for i in range(n):
+                t = out[i, c]
+                out[i, c] = out[i, p]
+                out[i, p] = t
     return True
 
 
@@ -459,7 +462,7 @@ def solve_rows(A, lb, ub, Acol1, wscale, Rscale, absb, F, rows, start, SB, SS, S
 def check_rows(F, rows, label, CW3, qv, wbasic, P3, isb, lb, ub, want_alpha, out_ok, out_w, out_alpha):
     """The cached-basis test of ``DirectionSolver._try`` for many rows at once, each against its own basis.
 
-    Row ``rows[t]`` of ``F`` is checked against basis ``label[rows[t]]``: ``CW3[b, :qv[b]] @ f >= 0``
+    Row ``rows[t]`` of ``F`` is checked against basis ``label[t]``: ``CW3[b, :qv[b]] @ f >= 0``
     (primal feasibility with the tolerances folded in); where it holds, ``out_w[t] = max(CW3[b, qv[b]] @ f,
     0)`` (0 if ``w`` is not basic) and, with ``want_alpha``, the activations of the basic solution as
     ``DirectionSolver._alpha`` computes them (``x = P f``; ``x_j / f_j``, ``lb_j`` where ``f_j = 0``,
@@ -468,7 +471,7 @@ def check_rows(F, rows, label, CW3, qv, wbasic, P3, isb, lb, ub, want_alpha, out
     m = F.shape[1]
     for t in range(rows.shape[0]):
         r = rows[t]
-        b = label[r]
+        b = label[t]
         q = qv[b]
         ok = True
         for c in range(q):
