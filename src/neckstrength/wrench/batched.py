@@ -125,7 +125,7 @@ SIMPLEX_MAX_ITER = 60
 
 #: With the dual simplex on, stage 1 ranks by at most this many most-hit bases (a warm start from
 #: a slightly worse basis costs a pivot or two, ranking by every cached basis costs more).
-SIMPLEX_TOP_MAX = 48
+SIMPLEX_TOP_MAX = 96
 
 
 #: With the dual simplex on, the double-precision ranking by all bases (stage 2) and the tie
@@ -719,7 +719,7 @@ class DirectionSolver:
                     V = (Fs[s0:s0 + step] if rem.size == N else Fs[r]) @ Dk
                     label[r] = V.argmin(axis=1)       # int16: radix sort below
                 lab = label[rem]
-                if single and simplex:
+                if simplex:
                     # compiled: every row against its own best-ranked basis (and its activations)
                     ok = self._check_compiled(F, rem, lab, used[:kk], 0, w, alpha, alpha_done, src, open_)
                     rem = rem[~ok]
@@ -741,6 +741,18 @@ class DirectionSolver:
                     blk = slice(s0, s0 + step)
                     cand = (Fr[blk] @ D) <= thr[blk, None]
                     cand[np.arange(cand.shape[0]), label[rem[blk]]] = False
+                    if simplex:
+                        # compiled: every (row, tied basis) pair; each row takes its first passing basis
+                        # in order of recent hits
+                        pr, pb = np.nonzero(cand)
+                        if pr.size:
+                            rows = rem[blk][pr]
+                            ok, ww, aa = self._check_pairs(F, rows, pb, used[:nb], alpha is not None)
+                            sel = np.flatnonzero(ok)
+                            sel = sel[np.unique(rows[sel], return_index=True)[1]]
+                            self._close(rows[sel], pb[sel], used[:nb], 0, ww[sel], aa[sel] if alpha is not None
+                                        else None, w, alpha, alpha_done, src, open_)
+                        continue
                     for bi in np.flatnonzero(cand.any(axis=0)):     # in order of recent hits
                         rows = rem[blk][cand[:, bi]]
                         rows = rows[open_[rows]]
@@ -874,36 +886,45 @@ class DirectionSolver:
             bb.pad = (CW, self._alpha_map(bb), bb.status[:m] == _BASIC)
         return bb.pad
 
-    def _check_compiled(self, F, rows, lab, bases, offset, w, alpha, alpha_done, src, open_) -> np.ndarray:
-        """:meth:`_try` of every row ``rows[t]`` against ``bases[lab[t]]`` in compiled code: the rows that
-        pass get ``w`` (and ``alpha``), ``src = offset + lab`` and are closed; returns their mask."""
+    def _check_pairs(self, F, rows, lab, bases, want: bool):
+        """:meth:`_try` of every row ``rows[t]`` against ``bases[lab[t]]`` in compiled code: (ok, w, alpha)."""
         k = len(bases)
         pads = [self._padded(bb) for bb in bases]
         CW3 = np.stack([p[0] for p in pads])
         qv = np.array([bb.q for bb in bases], dtype=np.int64)
         wb = np.array([bb.w_basic for bb in bases], dtype=np.bool_)
-        # the map to w sits in the last padded row: move it to row q of each basis
-        CW3[np.arange(k), qv] = CW3[:, -1]
-        want = alpha is not None
+        CW3[np.arange(k), qv] = CW3[:, -1]          # the map to w: from the last padded row to row q
         P3 = np.stack([p[1] for p in pads]) if want else np.empty((1, 1, 1))
         isb = np.stack([p[2] for p in pads])
         R = rows.size
         ok = np.empty(R, dtype=np.bool_)
         ww = np.empty(R)
         aa = np.empty((R if want else 1, self.m))
-        lab = np.ascontiguousarray(lab, dtype=np.int64)
-        _simplex.check_rows(F, rows.astype(np.int64), lab, CW3, qv, wb, P3, isb, self.lb, self.ub, want, ok, ww, aa)
-        g = rows[ok]
-        w[g] = ww[ok]
-        if want:
-            alpha[g] = aa[ok]
+        _simplex.check_rows(F, rows.astype(np.int64), np.ascontiguousarray(lab, dtype=np.int64), CW3, qv, wb, P3, isb,
+                            self.lb, self.ub, want, ok, ww, aa)
+        return ok, ww, aa
+
+    @staticmethod
+    def _close(g, lab, bases, offset, wv, av, w, alpha, alpha_done, src, open_) -> None:
+        """Rows ``g`` answered by ``bases[lab]`` (``src = offset + lab``) with ``w`` = ``wv``, ``alpha`` = ``av``."""
+        w[g] = wv
+        if alpha is not None:
+            alpha[g] = av
             alpha_done[g] = True
-        src[g] = offset + lab[ok]
+        src[g] = offset + lab
         open_[g] = False
-        counts = np.bincount(lab[ok], minlength=k)
+        counts = np.bincount(lab, minlength=len(bases))
         for bi in np.flatnonzero(counts):
             bases[bi].hits += counts[bi]
             bases[bi].total += int(counts[bi])
+
+    def _check_compiled(self, F, rows, lab, bases, offset, w, alpha, alpha_done, src, open_) -> np.ndarray:
+        """:meth:`_check_pairs`, then the rows that pass get ``w`` (and ``alpha``), ``src = offset + lab``
+        and are closed; returns their mask."""
+        want = alpha is not None
+        ok, ww, aa = self._check_pairs(F, rows, lab, bases, want)
+        self._close(rows[ok], np.asarray(lab)[ok].astype(np.int64), bases, offset, ww[ok], aa[ok] if want else None,
+                    w, alpha, alpha_done, src, open_)
         return ok
 
     def _try(self, bb: _Basis, F: np.ndarray, rows: np.ndarray):
