@@ -214,7 +214,7 @@ class _Basis:
         self.basic = basic        # basic variable indices (structural < m+1, row logicals m+1+i)
         self.T = T                # basic variables = T @ f
         self.P = None
-        self.pad = None           # padded arrays for the compiled checks (DirectionSolver._padded)
+        self.pad = None           # slot in the packed arrays of the compiled checks (DirectionSolver._slot)
         self.hits = 1.0           # recent hits (decayed per call); the HiGHS solve that found it
         self.total = 0            # all hits
 
@@ -284,6 +284,9 @@ class DirectionSolver:
         # compiled dual simplex for the rows no cached basis fits (``simplex=False``: HiGHS only)
         self.simplex = bool(simplex) and _simplex is not None
         self._packed = None                  # (SB, SS): basic sets and statuses of self.bases
+        self._slots = None                   # packed arrays of the compiled checks (_slot)
+        self._nslots = 0
+        self._slot_gen = 0
         self._learned_raw: set[bytes] = set()
 
     # ------------------------------------------------------------------ HiGHS side
@@ -876,31 +879,44 @@ class DirectionSolver:
             bb.P = P
         return bb.P
 
-    def _padded(self, bb: _Basis):
-        """``bb``'s checks and map to ``w`` padded to ``2 n + 3`` rows, ``P`` and its basic rows (built once)."""
-        if bb.pad is None:
-            m = self.m
-            CW = np.zeros((2 * self.n + 3, m))
-            CW[:bb.q] = bb.CW[:bb.q]
-            CW[-1] = bb.CW[bb.q]
-            bb.pad = (CW, self._alpha_map(bb), bb.status[:m] == _BASIC)
-        return bb.pad
+    def _slot(self, bb: _Basis) -> int:
+        """``bb``'s slot in the solver's packed arrays for the compiled checks (filled once per basis): the
+        checks and the map to ``w`` (``CW``, padded to ``2 n + 3`` rows, the map to ``w`` in row ``q``),
+        ``q``, whether ``w`` is basic, and the activation map ``x = P f`` (``P``'s basic rows; the other
+        rows are ``s_j e_j``)."""
+        if bb.pad is not None and bb.pad[0] == self._slot_gen:
+            return bb.pad[1]
+        n, m = self.n, self.m
+        if self._slots is None or self._nslots == self._slots[0].shape[0]:
+            cap = 64 if self._slots is None else 2 * self._slots[0].shape[0]
+            new = (np.zeros((cap, 2 * n + 3, m)), np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=np.bool_),
+                   np.zeros((cap, m, m)), np.zeros((cap, m), dtype=np.bool_))
+            if self._slots is not None:
+                for x, y in zip(new, self._slots):
+                    x[:self._nslots] = y[:self._nslots]
+            self._slots = new
+        CW, qv, wb, P3, isb = self._slots
+        i = self._nslots
+        self._nslots += 1
+        CW[i, :bb.q + 1] = bb.CW
+        qv[i] = bb.q
+        wb[i] = bb.w_basic
+        P3[i] = self._alpha_map(bb)
+        isb[i] = bb.status[:m] == _BASIC
+        bb.pad = (self._slot_gen, i)
+        return i
 
     def _check_pairs(self, F, rows, lab, bases, want: bool):
         """:meth:`_try` of every row ``rows[t]`` against ``bases[lab[t]]`` in compiled code: (ok, w, alpha)."""
-        k = len(bases)
-        pads = [self._padded(bb) for bb in bases]
-        CW3 = np.stack([p[0] for p in pads])
-        qv = np.array([bb.q for bb in bases], dtype=np.int64)
-        wb = np.array([bb.w_basic for bb in bases], dtype=np.bool_)
-        CW3[np.arange(k), qv] = CW3[:, -1]          # the map to w: from the last padded row to row q
-        P3 = np.stack([p[1] for p in pads]) if want else np.empty((1, 1, 1))
-        isb = np.stack([p[2] for p in pads])
+        if self._nslots + len(bases) > 4 * self.max_bases:      # evicted bases' slots: start afresh
+            self._slots, self._nslots, self._slot_gen = None, 0, self._slot_gen + 1
+        slot = np.array([self._slot(bb) for bb in bases], dtype=np.int64)
+        CW3, qv, wb, P3, isb = self._slots
         R = rows.size
         ok = np.empty(R, dtype=np.bool_)
         ww = np.empty(R)
         aa = np.empty((R if want else 1, self.m))
-        _simplex.check_rows(F, rows.astype(np.int64), np.ascontiguousarray(lab, dtype=np.int64), CW3, qv, wb, P3, isb,
+        _simplex.check_rows(F, rows.astype(np.int64), slot[np.asarray(lab, dtype=np.int64)], CW3, qv, wb, P3, isb,
                             self.lb, self.ub, want, ok, ww, aa)
         return ok, ww, aa
 
