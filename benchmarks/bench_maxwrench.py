@@ -75,9 +75,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from neckstrength.config import build_directions, load_config
+    from neckstrength.estimation.datasets import model_directions_table
     from neckstrength.model.full import load_full_model
     from neckstrength.model.reduction import named_model
-    from neckstrength.estimation.datasets import model_directions_table
     from neckstrength.wrench.batched import BasisCache, max_wrench_batched
     from neckstrength.wrench.highs import max_wrench, max_wrench_batch
 

@@ -40,9 +40,9 @@ from bench_maxwrench import grid_factors, pair_index
 
 def load(model_name: str, config: str):
     from neckstrength.config import build_directions, load_config
+    from neckstrength.estimation.datasets import model_directions_table
     from neckstrength.model.full import load_full_model
     from neckstrength.model.reduction import named_model
-    from neckstrength.estimation.datasets import model_directions_table
 
     os.chdir(ROOT)
     cfg = load_config(config)
