@@ -507,7 +507,7 @@ def check_rows(F, rows, label, CW3, qv, wbasic, P3, isb, lb, ub, want_alpha, out
                 out_alpha[t, j] = min(max(a, lb[j]), ub[j])
 
 
-@njit(cache=True, nogil=True, fastmath=_FM)
+@njit(cache=True, nogil=True)     # no fastmath: the same roundings as the numpy reference (e.g. no fused d_j s_j)
 def make_basis(A, lb, ub, Acol1, fscale, wscale, Rscale, b, bcols, brows, col, f, primal_tol, dual_tol, gap_rel,
                max_cond, Binv, T, CW, dvec):
     """The verification and linear maps of ``DirectionSolver._make_basis`` in compiled code.
