@@ -388,7 +388,7 @@ class DirectionSolver:
             return self._keys[key]
         self._last_new = True
         CW = CW[:q + 1].copy()
-        basis = _Basis(key, CW, q, bool(w_basic), dvec, col, np.r_[bcols, m + 1 + brows], T)
+        basis = _Basis(key, CW, q, bool(w_basic), dvec, col, np.concatenate([bcols, m + 1 + brows]), T)
         basis.Binv = Binv                               # columns in the order of basis.basic
         self._keys[key] = basis
         self.bases.append(basis)
@@ -1065,7 +1065,7 @@ def max_wrench_batched_arrays(R: np.ndarray, JT: np.ndarray, F: np.ndarray, U: n
     chunk_size = max(1, int(chunk_size))
     w = np.zeros((N, K))
     status = np.zeros((N, K), dtype=np.int8)
-    alpha = np.zeros((N, K, m)) if return_alpha else None
+    alpha = np.empty((N, K, m)) if return_alpha else None    # every row is written below
     solvers = [cache.entry(R, JT @ U[k], lbs[k], ubs[k]) for k in range(K)]
     n_threads = max(1, min(int(n_threads), K))
 
