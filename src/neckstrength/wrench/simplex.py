@@ -293,23 +293,29 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
         isbasic[basic[k]] = True
     since = 0
     it = 0
+    full = True
     while True:
-        # basic solution
-        for i in range(n):
-            rhs[i] = 0.0
-        for j in range(m):
-            if not isbasic[j]:
-                v = hi[j] if status[j] == UPPER else lo[j]
-                if v != 0.0:
-                    for i in range(n):
-                        rhs[i] -= AT[j, i] * v
+        # basic solution: from scratch at the start and after every refactorisation, else updated
+        # by the pivot (below); optimality is always confirmed from scratch with a fresh inverse
+        if full:
+            for i in range(n):
+                rhs[i] = 0.0
+            for j in range(m):
+                if not isbasic[j]:
+                    v = hi[j] if status[j] == UPPER else lo[j]
+                    if v != 0.0:
+                        for i in range(n):
+                            rhs[i] -= AT[j, i] * v
+            for k in range(n):
+                v = 0.0
+                for i in range(n):
+                    v += Binv[k, i] * rhs[i]
+                xB[k] = v
+            full = False
         r = -1
         worst = 0.0
         for k in range(n):
-            v = 0.0
-            for i in range(n):
-                v += Binv[k, i] * rhs[i]
-            xB[k] = v
+            v = xB[k]
             jb = basic[k]
             viol = 0.0
             if v < lo[jb] - ptol[jb]:
@@ -327,6 +333,7 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
             if not _invert(B, Binv, M):
                 return FAILED, it
             since = 0
+            full = True
             continue
         if it == max_iter:
             return FAILED, it
@@ -374,6 +381,8 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
         if q < 0:
             return INFEASIBLE_SUSPECT, it
         # pivot: q enters at row r, the leaving variable goes to its violated bound
+        xq = hi[q] if status[q] == UPPER else lo[q]        # the entering variable's current value
+        target = lo[jr] if sgn > 0 else hi[jr]
         if jr < mp1:
             status[jr] = LOWER if sgn > 0 else UPPER
         isbasic[jr] = False
@@ -387,6 +396,7 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
             if not _invert(B, Binv, M):
                 return FAILED, it
             since = 0
+            full = True
         else:
             _column(AT, q, col)
             for k in range(n):
@@ -397,6 +407,11 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
             piv = aq[r]
             if abs(piv) < 1e-14:
                 return FAILED, it
+            # primal step: x_q moves by theta, the other basic variables by -theta aq
+            theta = (xB[r] - target) / piv
+            for k in range(n):
+                xB[k] -= theta * aq[k]
+            xB[r] = xq + theta
             for i in range(n):
                 Binv[r, i] /= piv
             for k in range(n):
