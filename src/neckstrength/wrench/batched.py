@@ -414,6 +414,8 @@ class DirectionSolver:
         B = np.zeros((n, n))
         B[:, :nb] = A[:, bcols]
         B[brows, nb + np.arange(len(brows))] = -1.0     # row activity r = A z: [A, -I] (z, r) = 0
+        # numpy (not scipy) linear algebra: scipy ships its own OpenBLAS, whose threads fight
+        # numpy's for the cores right after the big matrix products
         try:
             Bi = np.linalg.inv(B)
         except np.linalg.LinAlgError:
@@ -427,14 +429,18 @@ class DirectionSolver:
         c = np.zeros(m + 1)
         c[m] = 1.0
         d = c - y @ A                                     # reduced costs (maximisation)
+        # reduced costs of columns that y hardly touches are pure rounding: scale by |y|_inf |A_j|_1
         tol = DUAL_TOL * (np.max(np.abs(y)) * self._Acol1 + c)
         nonbasic = col != _BASIC
         fixed = np.r_[self.lb * f == self.ub * f, False]
+        # a variable fixed at this f (f_j = 0 or lb_j = ub_j) may sit at either bound;
+        # choose the bound that keeps the basis dual feasible for every f (``col`` is changed in place)
         col[nonbasic & fixed & (d > 0)] = _UPPER
         col[nonbasic & fixed & (d < 0)] = _LOWER
         bad = nonbasic & (((col == _LOWER) & (d > tol)) | ((col == _UPPER) & (d < -tol)))
         if col[m] == _UPPER or np.any(bad):
             return False, 0, False
+        # basic solution as a linear map of f: nonbasic x_j = s_j f_j, basic variables = T f
         s = np.where(col[:m] == _UPPER, self.ub, self.lb)
         s[col[:m] == _BASIC] = 0.0
         T[:] = Bi @ -(A[:, :m] * s[None, :])
