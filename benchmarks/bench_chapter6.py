@@ -3,8 +3,8 @@
 
 ``N_F`` candidates from ``N(f_0, (0.3 f_0)^2)`` (``sample_prior``, the Chapter 6 prior, independent
 columns), 25 test directions, the 50-bin strength grid and 512 wrench bins of ``config/config.yaml``:
-both passes of ``SimulatedSet.build`` (wrenches, then activations into Algorithm 9's tables), each
-through :func:`neckstrength.wrench.solve`. Timed with the default solver (cached bases + compiled
+``SimulatedSet.build`` (one solve per candidate and direction through :func:`neckstrength.wrench.solve`,
+wrenches and activations together, then Algorithm 9's tables). Timed with the default solver (cached bases + compiled
 dual simplex) at ``N_F`` and, for comparison in the same run, the default and the previous path
 (``BasisCache(simplex=False)``: HiGHS for every cache miss) at ``--compare`` candidates.
 
@@ -40,7 +40,6 @@ def main(argv=None) -> int:
     ap.add_argument("--config", default=str(ROOT / "config" / "config.yaml"))
     args = ap.parse_args(argv)
 
-    from neckstrength.pipeline.common import model_directions  # noqa: F401 - same loaders as the pipeline
     from neckstrength.sequential.algorithms import SimulatedSet, StrengthGrid, sample_prior
     from neckstrength.wrench import BasisCache, solve
 
@@ -67,8 +66,8 @@ def main(argv=None) -> int:
         t, c = time.perf_counter() - t, time.process_time() - c
         s = cache.stats()
         print(f"  N_F={N} n_threads={nt} {'dual simplex' if simplex else 'HiGHS for misses (previous path)'}: "
-              f"{t:.1f} s (CPU {c:.1f} s; wrenches {sim.meta['seconds_wrench']:.1f} s, activation tables "
-              f"{sim.meta['seconds_activation']:.1f} s); {2 * N * K} LPs solved, HiGHS calls {s['highs_calls']}, "
+              f"{t:.1f} s (CPU {c:.1f} s; solves {sim.meta['seconds_wrench']:.1f} s, tables "
+              f"{sim.meta['seconds_activation']:.1f} s); {N * K} LPs solved, HiGHS calls {s['highs_calls']}, "
               f"simplex {s['simplex_solved']}, cache hits {s['cache_hits']}, bases {s['bases']}", flush=True)
         return t, sim
 

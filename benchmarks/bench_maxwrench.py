@@ -75,9 +75,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from neckstrength.config import build_directions, load_config
+    from neckstrength.estimation.datasets import model_directions_table
     from neckstrength.model.full import load_full_model
     from neckstrength.model.reduction import named_model
-    from neckstrength.pipeline.common import directions_of_model
     from neckstrength.wrench.batched import BasisCache, max_wrench_batched
     from neckstrength.wrench.highs import max_wrench, max_wrench_batch
 
@@ -90,7 +90,7 @@ def main(argv=None) -> int:
     except ImportError:
         full = load_full_model(cfg["data"]["model_dir"], cfg["data"]["thesis_dir"])
         model = named_model(full, args.model, cfg["data"]["thesis_dir"])
-    dirs, U = directions_of_model(model, build_directions(cfg))
+    dirs, U = model_directions_table(model, build_directions(cfg))
     K = U.shape[0]
     f_base = model.strengths
     pidx = pair_index(model)

@@ -40,9 +40,9 @@ from bench_maxwrench import grid_factors, pair_index
 
 def load(model_name: str, config: str):
     from neckstrength.config import build_directions, load_config
+    from neckstrength.estimation.datasets import model_directions_table
     from neckstrength.model.full import load_full_model
     from neckstrength.model.reduction import named_model
-    from neckstrength.pipeline.common import model_directions
 
     os.chdir(ROOT)
     cfg = load_config(config)
@@ -53,7 +53,7 @@ def load(model_name: str, config: str):
     except ImportError:
         full = load_full_model(cfg["data"]["model_dir"], cfg["data"]["thesis_dir"])
         model = named_model(full, model_name, cfg["data"]["thesis_dir"])
-    _, U = model_directions(model, build_directions(cfg))
+    _, U = model_directions_table(model, build_directions(cfg))
     return model, np.asarray(U, float)
 
 

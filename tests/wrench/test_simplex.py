@@ -202,3 +202,53 @@ def test_learned_bases_serve_later_calls():
     assert st2["cache_hits"] - st1["cache_hits"] > 0.9 * F.shape[0] * 3
     assert np.array_equal(s1, s2)
     assert np.all(np.abs(w1 - w2) <= 1e-12 * np.maximum(np.abs(w1), 1.0))
+
+
+@pytest.mark.parametrize("name", ["p3m12", "s3m24"])
+def test_compiled_basis_maps_equal_numpy(name):
+    """``simplex.make_basis`` (compiled) builds the same verified maps as the numpy reference, basis by basis,
+    including EMG-like lower bounds and a rank-deficient start (bases found by HiGHS and by the simplex)."""
+    rng = np.random.default_rng(23)
+    model, U, _ = get_model(name, 2)
+    F = draw_candidates(rng, model, "prior", 600, 0.3)
+    lb = np.where(rng.random(model.m) < 0.2, 0.05, 0.0)
+    checked = 0
+    for k, bounds in ((0, None), (1, None), (2, None), (3, lb), (4, lb)):
+        s = DirectionSolver(model.moment_arms, model.JT @ U[k], bounds)
+        s.solve(F)
+        assert len(s.bases) >= 2
+        for bb in s.bases:
+            n, m = s.n, s.m
+            bcols = np.sort(bb.basic[bb.basic <= m])
+            brows = np.sort(bb.basic[bb.basic > m]) - (m + 1)
+            f = F[rng.integers(F.shape[0])]
+            out = []
+            for compiled in (True, False):
+                col = bb.status.astype(np.int64).copy()
+                Binv, T, CW, dvec = np.empty((n, n)), np.empty((n, m)), np.empty((2 * n + 3, m)), np.empty(m)
+                if compiled:
+                    ok, q, wb = batched._simplex.make_basis(s.A, s.lb, s.ub, s._Acol1, s._fscale, s._wscale,
+                                                            s._Rscale, s.b, bcols, brows, col, f, batched.PRIMAL_TOL,
+                                                            batched.DUAL_TOL, batched.GAP_REL, batched.MAX_COND,
+                                                            Binv, T, CW, dvec)
+                else:
+                    ok, q, wb = s._make_basis_numpy(bcols, brows, col, f, Binv, T, CW, dvec)
+                out.append((ok, q, wb, col, T, CW[:q + 1], dvec))
+            (ok1, q1, wb1, c1, T1, C1, d1), (ok2, q2, wb2, c2, T2, C2, d2) = out
+            assert ok1 and ok2 and bool(wb1) == bool(wb2) and np.array_equal(c1, c2)
+            assert np.abs(T1 - T2).max() <= 1e-11 * max(1.0, float(np.abs(T2).max()))
+            assert np.abs(d1 - d2).max() <= 1e-11 * max(1.0, float(np.abs(d2).max()))
+            np.testing.assert_allclose(C1[-1], C2[-1], rtol=0, atol=1e-11 * max(1.0, float(np.abs(C2).max())))
+            # the checks, as sets of rows; a reduced cost that rounds to +-1e-20 instead of 0 may add the gap
+            # row GAP_REL t_w - gap with a rounding-sized gap on one side only (it changes no answer)
+            tol = 1e-11 * max(1.0, float(np.abs(C2).max()))
+            A_, B_ = (C1[:-1], C2[:-1]) if q1 >= q2 else (C2[:-1], C1[:-1])
+            match = np.abs(A_[:, None, :] - B_[None, :, :]).max(axis=2) <= tol
+            assert match.any(axis=0).all()                 # every row of the shorter set is in the longer
+            extra = A_[~match.any(axis=1)]
+            assert abs(q1 - q2) <= 1 and extra.shape[0] == abs(q1 - q2)
+            if extra.size:
+                gap_row = batched.GAP_REL * (T1[list(bcols).index(m)] if m in bcols else 0.0)
+                assert np.abs(extra - gap_row).max() <= 1e-15 * max(1.0, float(np.abs(d2).max()))
+            checked += 1
+    assert checked > 20

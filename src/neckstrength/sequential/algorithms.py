@@ -209,9 +209,11 @@ class SimulatedSet:
               progress: Callable[[str], None] | None = None) -> list["SimulatedSet"]:
         """The general simulated data set for candidates ``F`` and Algorithm 9's tables, one set per grid.
 
-        Two passes over the candidates (wrenches first, to fix each direction's wrench grid; then the
-        activations chunk by chunk, accumulated into ``A`` without holding the (N, K, m) array unless
-        ``keep_alpha``). The basis cache makes the second pass cheap.
+        One solve per candidate and direction (:func:`neckstrength.wrench.solve`: the wrench and the optimal
+        activations together), direction by direction (``n_threads`` directions at a time): once all the
+        wrenches of a direction are known its geometric wrench grid is fixed, and its activations go straight
+        into ``A`` (double precision sums, stored in single precision); the (N, K, m) activations are held
+        only with ``keep_alpha``.
         """
         import time
 
@@ -224,46 +226,54 @@ class SimulatedSet:
         N, m = F.shape
         K = U.shape[0]
         iw = np.ones(N) if iw is None else np.asarray(iw, float)
-        w, _, status = solve(model, F, U, chunk_size=chunk, cache=cache, return_alpha=False,
-                                          n_threads=n_threads)
-        w = np.where(status == _OPT, w, 0.0)
+        fbins = [g.index(F) for g in grids]
+        As = [np.zeros((K, n_wbins + 1, m, g.n_bins)) for g in grids]
+        w = np.zeros((N, K))
+        status = np.zeros((N, K), dtype=np.int8)
         wedges = np.zeros((K, n_wbins + 1))
         wbin = np.zeros((N, K), dtype=np.int16)
         wcount = np.zeros((K, n_wbins + 1))
-        for i in range(K):
-            pos = w[:, i] > 0
-            if pos.any():
-                lo, hi = w[pos, i].min() * (1 - 1e-9), w[pos, i].max() * (1 + 1e-9)
-                wedges[i] = np.geomspace(lo, hi if hi > lo else lo * 1.001, n_wbins + 1)
-            else:
-                wedges[i] = np.geomspace(1.0, 2.0, n_wbins + 1)
-            v = np.clip(np.searchsorted(wedges[i], w[:, i], side="right"), 1, n_wbins)
-            v[~pos] = 0
-            wbin[:, i] = v
-            wcount[i] = np.bincount(v, weights=iw, minlength=n_wbins + 1)
-        t1 = time.time()
-        fbins = [g.index(F) for g in grids]
-        As = [np.zeros((K, n_wbins + 1, m, g.n_bins)) for g in grids]
         alpha_all = np.zeros((N, K, m), dtype=np.float32) if keep_alpha else None
-        for s in range(0, N, chunk):
-            e = min(N, s + chunk)
-            _, a, st = solve(model, F[s:e], U, chunk_size=chunk, cache=cache, return_alpha=True,
-                                          n_threads=n_threads)
-            a = np.where((st == _OPT)[..., None], np.nan_to_num(a, nan=0.0), 0.0)
-            if keep_alpha:
-                alpha_all[s:e] = a
-            for g, fb, A in zip(grids, fbins, As):
-                nb = g.n_bins
-                for i in range(K):
-                    idx = (wbin[s:e, i, None].astype(np.int64) * m + np.arange(m)[None, :]) * nb + fb[s:e]
-                    A[i] += np.bincount(idx.ravel(), weights=(iw[s:e, None] * a[:, i, :]).ravel(),
-                                        minlength=(n_wbins + 1) * m * nb).reshape(n_wbins + 1, m, nb)
+        t_tab = 0.0
+        step = max(1, int(n_threads))
+        for i0 in range(0, K, step):
+            ii = list(range(i0, min(K, i0 + step)))
+            wi, a, st = solve(model, F, U[ii], chunk_size=chunk, cache=cache, return_alpha=True, n_threads=n_threads)
+            t = time.time()
+            ok = st == _OPT
+            a[~ok] = 0.0
+            if np.isnan(a).any():
+                np.nan_to_num(a, copy=False, nan=0.0)
+            for c, i in enumerate(ii):
+                w[:, i] = np.where(ok[:, c], wi[:, c], 0.0)
+                status[:, i] = st[:, c]
+                pos = w[:, i] > 0
+                if pos.any():
+                    lo, hi = w[pos, i].min() * (1 - 1e-9), w[pos, i].max() * (1 + 1e-9)
+                    wedges[i] = np.geomspace(lo, hi if hi > lo else lo * 1.001, n_wbins + 1)
+                else:
+                    wedges[i] = np.geomspace(1.0, 2.0, n_wbins + 1)
+                v = np.clip(np.searchsorted(wedges[i], w[:, i], side="right"), 1, n_wbins)
+                v[~pos] = 0
+                wbin[:, i] = v
+                wcount[i] = np.bincount(v, weights=iw, minlength=n_wbins + 1)
+                for g, fb, A in zip(grids, fbins, As):
+                    _accumulate_activations(A[i], a[:, c, :], v, fb, iw, chunk)
+                if keep_alpha:
+                    alpha_all[:, i] = a[:, c, :]
+            del a
+            t_tab += time.time() - t
+            if progress and K > step:
+                progress(f"[{model.name}] general simulated data set: {ii[-1] + 1} of {K} directions "
+                         f"({time.time() - t0:.0f} s)")
+        t1 = time.time() - t_tab
         meta = dict(meta or {})
         meta.update({"model": model.name, "n_candidates": int(N), "n_not_producible": int((status != _OPT).sum()),
-                     "seconds_wrench": t1 - t0, "seconds_activation": time.time() - t1})
+                     "seconds_wrench": t1 - t0, "seconds_activation": t_tab})
+        # seconds_wrench: the solves (wrenches and activations); seconds_activation: the tables
         if progress:
-            progress(f"[{model.name}] general simulated data set: {N} candidates x {K} directions; wrenches "
-                     f"{t1 - t0:.1f} s, activation tables {time.time() - t1:.1f} s "
+            progress(f"[{model.name}] general simulated data set: {N} candidates x {K} directions; solves "
+                     f"{t1 - t0:.1f} s, tables {t_tab:.1f} s "
                      f"({meta['n_not_producible']} not producible)")
         out = []
         for g, fb, A in zip(grids, fbins, As):
@@ -291,6 +301,37 @@ class SimulatedSet:
         return cls([str(x) for x in z["directions"]], z["U"], z["F"], z["iw"], StrengthGrid(z["edges"]), z["fbin"],
                    z["w"], z["wedges"], z["wbin"], z["wcount"], z["A"], z["prior_pdf"],
                    z["alpha"] if "alpha" in z.files else None, json.loads(str(z["meta"])))
+
+
+def _accumulate_activations(A: np.ndarray, alpha: np.ndarray, wbin: np.ndarray, fbin: np.ndarray, iw: np.ndarray,
+                            chunk: int) -> None:
+    """One direction: ``A[v, j, b] += sum_{k: wbin_k = v, fbin_kj = b} iw_k alpha_kj`` (double precision sums)."""
+    if _accumulate_compiled is not None:
+        _accumulate_compiled(A, np.ascontiguousarray(alpha), np.ascontiguousarray(wbin), np.ascontiguousarray(fbin),
+                             np.ascontiguousarray(iw, dtype=float))
+        return
+    nv, m, nb = A.shape
+    cols = np.arange(m)[None, :] * nb
+    for s in range(0, alpha.shape[0], chunk):
+        e = min(alpha.shape[0], s + chunk)
+        idx = wbin[s:e, None].astype(np.int64) * (m * nb) + (fbin[s:e] + cols)
+        A += np.bincount(idx.ravel(), weights=(iw[s:e, None] * alpha[s:e]).ravel(),
+                         minlength=nv * m * nb).reshape(nv, m, nb)
+
+
+try:  # compiled accumulation (numba, a dependency of the solver); the bincount loop above otherwise
+    from numba import njit
+
+    @njit(cache=True, nogil=True)
+    def _accumulate_compiled(A, alpha, wbin, fbin, iw):  # pragma: no cover - compiled
+        for k in range(alpha.shape[0]):
+            v = wbin[k]
+            for j in range(alpha.shape[1]):
+                a = alpha[k, j]
+                if a != 0.0:
+                    A[v, j, fbin[k, j]] += iw[k] * a
+except ImportError:  # pragma: no cover
+    _accumulate_compiled = None
 
 
 def _weighted_threshold(d: np.ndarray, iw: np.ndarray, q: float) -> float:

@@ -125,7 +125,7 @@ SIMPLEX_MAX_ITER = 60
 
 #: With the dual simplex on, stage 1 ranks by at most this many most-hit bases (a warm start from
 #: a slightly worse basis costs a pivot or two, ranking by every cached basis costs more).
-SIMPLEX_TOP_MAX = 48
+SIMPLEX_TOP_MAX = 96
 
 
 #: With the dual simplex on, the double-precision ranking by all bases (stage 2) and the tie
@@ -202,7 +202,7 @@ class _Basis:
     the basis is optimal. ``P`` (m x m): ``x = P @ f`` (forces), built lazily.
     """
 
-    __slots__ = ("key", "CW", "q", "w_basic", "dvec", "status", "basic", "T", "P", "hits", "total", "Binv")
+    __slots__ = ("key", "CW", "q", "w_basic", "dvec", "status", "basic", "T", "P", "hits", "total", "Binv", "pad")
 
     def __init__(self, key, CW, q, w_basic, dvec, status, basic, T):
         self.key = key
@@ -214,6 +214,7 @@ class _Basis:
         self.basic = basic        # basic variable indices (structural < m+1, row logicals m+1+i)
         self.T = T                # basic variables = T @ f
         self.P = None
+        self.pad = None           # slot in the packed arrays of the compiled checks (DirectionSolver._slot)
         self.hits = 1.0           # recent hits (decayed per call); the HiGHS solve that found it
         self.total = 0            # all hits
 
@@ -283,6 +284,9 @@ class DirectionSolver:
         # compiled dual simplex for the rows no cached basis fits (``simplex=False``: HiGHS only)
         self.simplex = bool(simplex) and _simplex is not None
         self._packed = None                  # (SB, SS): basic sets and statuses of self.bases
+        self._slots = None                   # packed arrays of the compiled checks (_slot)
+        self._nslots = 0
+        self._slot_gen = 0
         self._learned_raw: set[bytes] = set()
 
     # ------------------------------------------------------------------ HiGHS side
@@ -347,40 +351,34 @@ class DirectionSolver:
 
     def _make_basis(self, bcols: np.ndarray, brows: np.ndarray, col: np.ndarray, f: np.ndarray):
         """Verify a basis (sorted basic columns and row logicals, per-column bound status ``col``)
-        and cache it as linear maps; returns the _Basis (or the cached equal one) or None."""
+        and cache it as linear maps; returns the _Basis (or the cached equal one) or None.
+
+        The numerics (:func:`neckstrength.wrench.simplex.make_basis`, compiled) are, in order: the
+        inverse of the basis matrix (1-norm condition number below ``MAX_COND``); the dual solution and
+        reduced costs, with the optimal signs up to ``DUAL_TOL`` relative to ``|y|_inf |A_j|_1`` (a
+        variable fixed at this ``f`` moves to the bound that keeps the basis dual feasible for every
+        ``f``); the basic solution as a linear map ``T f``; the primal checks with their tolerances
+        (``PRIMAL_TOL`` times the size of the terms), the weak-duality gap rule (``GAP_REL``) and the
+        dual bound ``dvec``.
+        """
         n, m = self.n, self.m
-        A = self.A
-        nb = len(bcols)
-        B = np.zeros((n, n))
-        B[:, :nb] = A[:, bcols]
-        B[brows, nb + np.arange(len(brows))] = -1.0     # row activity r = A z: [A, -I] (z, r) = 0
-        # numpy (not scipy) linear algebra: scipy ships its own OpenBLAS, whose threads fight
-        # numpy's for the cores right after the big matrix products
-        try:
-            Binv = np.linalg.inv(B)
-        except np.linalg.LinAlgError:
-            Binv = None
-        if Binv is None or not np.all(np.isfinite(Binv)) or \
-                np.abs(B).sum(0).max() * np.abs(Binv).sum(0).max() > MAX_COND:
+        bcols = np.ascontiguousarray(bcols, dtype=np.int64)
+        brows = np.ascontiguousarray(brows, dtype=np.int64)
+        if bcols.size + brows.size != n:
             self.stats.rejected_bases += 1
             return None
-        cB = np.zeros(n)
-        cB[:nb] = (bcols == m).astype(float)
-        y = Binv.T @ cB
-        c = np.zeros(m + 1)
-        c[m] = 1.0
-        d = c - y @ A                                     # reduced costs (maximisation)
-        # reduced costs of columns that y hardly touches are pure rounding: scale by |y|_inf |A_j|_1
-        tol = DUAL_TOL * (np.max(np.abs(y)) * self._Acol1 + c)
-        nonbasic = col != _BASIC
-        fixed = np.r_[self.lb * f == self.ub * f, False]
-        # a variable fixed at this f (f_j = 0 or lb_j = ub_j) may sit at either bound;
-        # choose the bound that keeps the basis dual feasible for every f
-        col = col.copy()
-        col[nonbasic & fixed & (d > 0)] = _UPPER
-        col[nonbasic & fixed & (d < 0)] = _LOWER
-        bad = nonbasic & (((col == _LOWER) & (d > tol)) | ((col == _UPPER) & (d < -tol)))
-        if col[m] == _UPPER or np.any(bad):
+        col = np.array(col, dtype=np.int64)
+        Binv = np.empty((n, n))
+        T = np.empty((n, m))
+        CW = np.empty((2 * n + 3, m))
+        dvec = np.empty(m)
+        if _simplex is not None:
+            ok, q, w_basic = _simplex.make_basis(self.A, self.lb, self.ub, self._Acol1, self._fscale, self._wscale,
+                                                 self._Rscale, self.b, bcols, brows, col, np.asarray(f, float),
+                                                 PRIMAL_TOL, DUAL_TOL, GAP_REL, MAX_COND, Binv, T, CW, dvec)
+        else:
+            ok, q, w_basic = self._make_basis_numpy(bcols, brows, col, f, Binv, T, CW, dvec)
+        if not ok:
             self.stats.rejected_bases += 1
             return None
         key = (bcols.tobytes(), brows.tobytes(), col.astype(np.int8).tobytes())
@@ -389,43 +387,8 @@ class DirectionSolver:
             self.stats.highs_known += 1
             return self._keys[key]
         self._last_new = True
-        # basic solution as a linear map of f: nonbasic x_j = s_j f_j, basic variables = T f
-        s = np.where(col[:m] == _UPPER, self.ub, self.lb)
-        s[col[:m] == _BASIC] = 0.0
-        T = Binv @ -(A[:, :m] * s[None, :])
-        if not np.all(np.isfinite(T)):
-            self.stats.rejected_bases += 1
-            return None
-        absT = np.abs(T)
-        kx = np.flatnonzero(bcols < m)                  # basic muscle forces: lb_j f_j <= x_j <= ub_j f_j
-        J = bcols[kx]
-        E = np.zeros((kx.size, m))
-        E[np.arange(kx.size), J] = 1.0
-        tolx = PRIMAL_TOL * (absT[kx] + E + self._fscale)
-        parts = [T[kx] - self.lb[J, None] * E + tolx, self.ub[J, None] * E - T[kx] + tolx]
-        kw = np.flatnonzero(bcols == m)
-        w_basic = kw.size == 1
-        tw = T[kw[0]] if w_basic else np.zeros(m)
-        if w_basic:                                     # w >= 0
-            parts.append((tw + PRIMAL_TOL * (absT[kw[0]] + self._wscale))[None, :])
-        # weak duality: w*(f) <= sum_j max(d_j lb_j f_j, d_j ub_j f_j) for any y with d_w <= 0;
-        # a reduced cost of the wrong sign (within DUAL_TOL) at a nonbasic bound makes the basis
-        # suboptimal by at most gap . f: accept f only where that is below GAP_REL * w
-        dx = d[:m]
-        dvec = np.maximum(dx * self.lb, dx * self.ub)
-        gap = np.where(col[:m] == _BASIC, 0.0, dvec - dx * s)
-        if np.any(gap > 0):
-            parts.append((GAP_REL * tw - gap)[None, :])
-        if brows.size:                                  # basic row activities must be 0
-            t = T[nb:]
-            tolr = PRIMAL_TOL * (np.abs(t) + self._Rscale[brows] + np.abs(self.b[brows, None]) * self._wscale)
-            parts += [t + tolr, -t + tolr]
-        C = np.vstack(parts)
-        q = C.shape[0]
-        CW = np.empty((q + 1, m))
-        CW[:q] = C
-        CW[q] = tw
-        basis = _Basis(key, CW, q, w_basic, dvec, col, np.r_[bcols, m + 1 + brows], T)
+        CW = CW[:q + 1].copy()
+        basis = _Basis(key, CW, q, bool(w_basic), dvec, col, np.concatenate([bcols, m + 1 + brows]), T)
         basis.Binv = Binv                               # columns in the order of basis.basic
         self._keys[key] = basis
         self.bases.append(basis)
@@ -442,6 +405,76 @@ class DirectionSolver:
                 return None
         self.stats.bases = len(self.bases)
         return basis
+
+    def _make_basis_numpy(self, bcols, brows, col, f, Binv, T, CW, dvec):
+        """:func:`neckstrength.wrench.simplex.make_basis` in numpy (without numba; the tests' reference)."""
+        n, m = self.n, self.m
+        A = self.A
+        nb = len(bcols)
+        B = np.zeros((n, n))
+        B[:, :nb] = A[:, bcols]
+        B[brows, nb + np.arange(len(brows))] = -1.0     # row activity r = A z: [A, -I] (z, r) = 0
+        # numpy (not scipy) linear algebra: scipy ships its own OpenBLAS, whose threads fight
+        # numpy's for the cores right after the big matrix products
+        try:
+            Bi = np.linalg.inv(B)
+        except np.linalg.LinAlgError:
+            return False, 0, False
+        if not np.all(np.isfinite(Bi)) or np.abs(B).sum(0).max() * np.abs(Bi).sum(0).max() > MAX_COND:
+            return False, 0, False
+        Binv[:] = Bi
+        cB = np.zeros(n)
+        cB[:nb] = (bcols == m).astype(float)
+        y = Bi.T @ cB
+        c = np.zeros(m + 1)
+        c[m] = 1.0
+        d = c - y @ A                                     # reduced costs (maximisation)
+        # reduced costs of columns that y hardly touches are pure rounding: scale by |y|_inf |A_j|_1
+        tol = DUAL_TOL * (np.max(np.abs(y)) * self._Acol1 + c)
+        nonbasic = col != _BASIC
+        fixed = np.r_[self.lb * f == self.ub * f, False]
+        # a variable fixed at this f (f_j = 0 or lb_j = ub_j) may sit at either bound;
+        # choose the bound that keeps the basis dual feasible for every f (``col`` is changed in place)
+        col[nonbasic & fixed & (d > 0)] = _UPPER
+        col[nonbasic & fixed & (d < 0)] = _LOWER
+        bad = nonbasic & (((col == _LOWER) & (d > tol)) | ((col == _UPPER) & (d < -tol)))
+        if col[m] == _UPPER or np.any(bad):
+            return False, 0, False
+        # basic solution as a linear map of f: nonbasic x_j = s_j f_j, basic variables = T f
+        s = np.where(col[:m] == _UPPER, self.ub, self.lb)
+        s[col[:m] == _BASIC] = 0.0
+        T[:] = Bi @ -(A[:, :m] * s[None, :])
+        if not np.all(np.isfinite(T)):
+            return False, 0, False
+        absT = np.abs(T)
+        kx = np.flatnonzero(bcols < m)                  # basic muscle forces: lb_j f_j <= x_j <= ub_j f_j
+        J = bcols[kx]
+        E = np.zeros((kx.size, m))
+        E[np.arange(kx.size), J] = 1.0
+        tolx = PRIMAL_TOL * (absT[kx] + E + self._fscale)
+        parts = [T[kx] - self.lb[J, None] * E + tolx, self.ub[J, None] * E - T[kx] + tolx]
+        kw = np.flatnonzero(bcols == m)
+        w_basic = kw.size == 1
+        tw = T[kw[0]] if w_basic else np.zeros(m)
+        if w_basic:                                     # w >= 0
+            parts.append((tw + PRIMAL_TOL * (absT[kw[0]] + self._wscale))[None, :])
+        # weak duality: w*(f) <= sum_j max(d_j lb_j f_j, d_j ub_j f_j) for any y with d_w <= 0;
+        # a reduced cost of the wrong sign (within DUAL_TOL) at a nonbasic bound makes the basis
+        # suboptimal by at most gap . f: accept f only where that is below GAP_REL * w
+        dx = d[:m]
+        dvec[:] = np.maximum(dx * self.lb, dx * self.ub)
+        gap = np.where(col[:m] == _BASIC, 0.0, dvec - dx * s)
+        if np.any(gap > 0):
+            parts.append((GAP_REL * tw - gap)[None, :])
+        if brows.size:                                  # basic row activities must be 0
+            t = T[nb:]
+            tolr = PRIMAL_TOL * (np.abs(t) + self._Rscale[brows] + np.abs(self.b[brows, None]) * self._wscale)
+            parts += [t + tolr, -t + tolr]
+        C = np.vstack(parts)
+        q = C.shape[0]
+        CW[:q] = C
+        CW[q] = tw
+        return True, q, w_basic
 
     def _add_farkas(self, dual_ray, f: np.ndarray):
         """Cache HiGHS's dual ray as an infeasibility test linear in f; returns it or None."""
@@ -635,6 +668,7 @@ class DirectionSolver:
         used = list(self.bases)                   # src[i] >= 0: answered by used[src[i]]
         src = np.full(N, -1, dtype=np.int64)      # -1: open, -2: HiGHS or certificate
         open_ = np.ones(N, bool)
+        alpha_done = np.zeros(N, bool)            # activations already written (compiled stage 1)
         ubest = np.full(N, np.inf)                # best (smallest) cached dual bound per open row
         floor = ZERO_REL * max(1.0, fmax * m)     # >= the 'zero' threshold of every row
         simplex = self.simplex
@@ -694,6 +728,11 @@ class DirectionSolver:
                     V = (Fs[s0:s0 + step] if rem.size == N else Fs[r]) @ Dk
                     label[r] = V.argmin(axis=1)       # int16: radix sort below
                 lab = label[rem]
+                if simplex:
+                    # compiled: every row against its own best-ranked basis (and its activations)
+                    ok = self._check_compiled(F, rem, lab, used[:kk], 0, w, alpha, alpha_done, src, open_)
+                    rem = rem[~ok]
+                    continue
                 order = np.argsort(lab, kind="stable")
                 counts = np.bincount(lab, minlength=kk)
                 ends = np.cumsum(counts)
@@ -711,6 +750,18 @@ class DirectionSolver:
                     blk = slice(s0, s0 + step)
                     cand = (Fr[blk] @ D) <= thr[blk, None]
                     cand[np.arange(cand.shape[0]), label[rem[blk]]] = False
+                    if simplex:
+                        # compiled: every (row, tied basis) pair; each row takes its first passing basis
+                        # in order of recent hits
+                        pr, pb = np.nonzero(cand)
+                        if pr.size:
+                            rows = rem[blk][pr]
+                            ok, ww, aa = self._check_pairs(F, rows, pb, used[:nb], alpha is not None)
+                            sel = np.flatnonzero(ok)
+                            sel = sel[np.unique(rows[sel], return_index=True)[1]]
+                            self._close(rows[sel], pb[sel], used[:nb], 0, ww[sel], aa[sel] if alpha is not None
+                                        else None, w, alpha, alpha_done, src, open_)
+                        continue
                     for bi in np.flatnonzero(cand.any(axis=0)):     # in order of recent hits
                         rows = rem[blk][cand[:, bi]]
                         rows = rows[open_[rows]]
@@ -757,8 +808,10 @@ class DirectionSolver:
                     thr = ubest[rest]
                     cand = u <= thr + TIE_REL * (np.abs(thr) + floor)
                     ubest[rest] = np.minimum(thr, u)
-                    for bi in np.unique(lab[cand]):
-                        self.stats.cache_hits += accept(i0 + int(bi), rest[cand & (lab == bi)])
+                    if cand.any():
+                        ok = self._check_compiled(F, rest[cand], lab[cand], new, i0, w, alpha, alpha_done, src,
+                                                  open_)
+                        self.stats.cache_hits += int(ok.sum())
             rem = np.concatenate(left) if left else rem[:0]
         # HiGHS for the misses; each new basis / certificate is checked against the open rows.
         # Lean mode, when a big cache still misses most rows (many muscles, scattered candidates):
@@ -815,9 +868,86 @@ class DirectionSolver:
             w[zero] = 0.0
             status[zero] = _ZERO
         if return_alpha:
-            for bi in np.unique(src[src >= 0]):
-                g = np.flatnonzero(src == bi)
+            rest = (src >= 0) & ~alpha_done
+            for bi in np.unique(src[rest]):
+                g = np.flatnonzero(rest & (src == bi))
                 alpha[g] = self._alpha(used[bi], F[g])
+
+    def _alpha_map(self, bb: _Basis) -> np.ndarray:
+        """``P`` (m x m) with ``x = P f`` (forces of the basic solution), built once per basis."""
+        if bb.P is None:
+            m = self.m
+            col = bb.status[:m]
+            P = np.diag(np.where(col == _UPPER, self.ub, self.lb)).astype(float)
+            for k, j in enumerate(bb.basic):
+                if j < m:
+                    P[j] = bb.T[k]
+            bb.P = P
+        return bb.P
+
+    def _slot(self, bb: _Basis) -> int:
+        """``bb``'s slot in the solver's packed arrays for the compiled checks (filled once per basis): the
+        checks and the map to ``w`` (``CW``, padded to ``2 n + 3`` rows, the map to ``w`` in row ``q``),
+        ``q``, whether ``w`` is basic, and the activation map ``x = P f`` (``P``'s basic rows; the other
+        rows are ``s_j e_j``)."""
+        if bb.pad is not None and bb.pad[0] == self._slot_gen:
+            return bb.pad[1]
+        n, m = self.n, self.m
+        if self._slots is None or self._nslots == self._slots[0].shape[0]:
+            cap = 64 if self._slots is None else 2 * self._slots[0].shape[0]
+            new = (np.zeros((cap, 2 * n + 3, m)), np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=np.bool_),
+                   np.zeros((cap, m, m)), np.zeros((cap, m), dtype=np.bool_))
+            if self._slots is not None:
+                for x, y in zip(new, self._slots):
+                    x[:self._nslots] = y[:self._nslots]
+            self._slots = new
+        CW, qv, wb, P3, isb = self._slots
+        i = self._nslots
+        self._nslots += 1
+        CW[i, :bb.q + 1] = bb.CW
+        qv[i] = bb.q
+        wb[i] = bb.w_basic
+        P3[i] = self._alpha_map(bb)
+        isb[i] = bb.status[:m] == _BASIC
+        bb.pad = (self._slot_gen, i)
+        return i
+
+    def _check_pairs(self, F, rows, lab, bases, want: bool):
+        """:meth:`_try` of every row ``rows[t]`` against ``bases[lab[t]]`` in compiled code: (ok, w, alpha)."""
+        if self._nslots + len(bases) > 4 * self.max_bases:      # evicted bases' slots: start afresh
+            self._slots, self._nslots, self._slot_gen = None, 0, self._slot_gen + 1
+        slot = np.array([self._slot(bb) for bb in bases], dtype=np.int64)
+        CW3, qv, wb, P3, isb = self._slots
+        R = rows.size
+        ok = np.empty(R, dtype=np.bool_)
+        ww = np.empty(R)
+        aa = np.empty((R if want else 1, self.m))
+        _simplex.check_rows(F, rows.astype(np.int64), slot[np.asarray(lab, dtype=np.int64)], CW3, qv, wb, P3, isb,
+                            self.lb, self.ub, want, ok, ww, aa)
+        return ok, ww, aa
+
+    @staticmethod
+    def _close(g, lab, bases, offset, wv, av, w, alpha, alpha_done, src, open_) -> None:
+        """Rows ``g`` answered by ``bases[lab]`` (``src = offset + lab``) with ``w`` = ``wv``, ``alpha`` = ``av``."""
+        w[g] = wv
+        if alpha is not None:
+            alpha[g] = av
+            alpha_done[g] = True
+        src[g] = offset + lab
+        open_[g] = False
+        counts = np.bincount(lab, minlength=len(bases))
+        for bi in np.flatnonzero(counts):
+            bases[bi].hits += counts[bi]
+            bases[bi].total += int(counts[bi])
+
+    def _check_compiled(self, F, rows, lab, bases, offset, w, alpha, alpha_done, src, open_) -> np.ndarray:
+        """:meth:`_check_pairs`, then the rows that pass get ``w`` (and ``alpha``), ``src = offset + lab``
+        and are closed; returns their mask."""
+        want = alpha is not None
+        ok, ww, aa = self._check_pairs(F, rows, lab, bases, want)
+        self._close(rows[ok], np.asarray(lab)[ok].astype(np.int64), bases, offset, ww[ok], aa[ok] if want else None,
+                    w, alpha, alpha_done, src, open_)
+        return ok
 
     def _try(self, bb: _Basis, F: np.ndarray, rows: np.ndarray):
         """Positions in ``rows`` of the rows of ``F`` for which ``bb`` is optimal, and their w."""
@@ -836,15 +966,7 @@ class DirectionSolver:
 
     def _alpha(self, bb: _Basis, F: np.ndarray) -> np.ndarray:
         """Activations of the basic solution (``lb`` where ``f = 0``, clipped as in maxwrench)."""
-        if bb.P is None:
-            m = self.m
-            col = bb.status[:m]
-            P = np.diag(np.where(col == _UPPER, self.ub, self.lb)).astype(float)
-            for k, j in enumerate(bb.basic):
-                if j < m:
-                    P[j] = bb.T[k]
-            bb.P = P
-        X = F @ bb.P.T
+        X = F @ self._alpha_map(bb).T
         with np.errstate(divide="ignore", invalid="ignore"):
             alpha = np.where(F > 0, X / np.where(F > 0, F, 1.0), self.lb[None, :])
         return np.clip(alpha, self.lb[None, :], self.ub[None, :])
@@ -949,7 +1071,7 @@ def max_wrench_batched_arrays(R: np.ndarray, JT: np.ndarray, F: np.ndarray, U: n
     chunk_size = max(1, int(chunk_size))
     w = np.zeros((N, K))
     status = np.zeros((N, K), dtype=np.int8)
-    alpha = np.zeros((N, K, m)) if return_alpha else None
+    alpha = np.empty((N, K, m)) if return_alpha else None    # every row is written below
     solvers = [cache.entry(R, JT @ U[k], lbs[k], ubs[k]) for k in range(K)]
     n_threads = max(1, min(int(n_threads), K))
 

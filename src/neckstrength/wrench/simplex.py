@@ -44,40 +44,43 @@ LOWER, BASIC, UPPER = 0, 1, 2
 
 @njit(cache=True, nogil=True, fastmath=_FM)
 def _invert(B, out, M):
-    """Gauss-Jordan inverse with partial pivoting (``M``: workspace); False if (numerically) singular."""
+    """In-place Gauss-Jordan inverse of ``B`` into ``out`` with partial (row) pivoting; False if
+    (numerically) singular. ``M``: workspace (its first row holds the row interchanges)."""
     n = B.shape[0]
-    M[:, :] = B
-    for i in range(n):
-        for j in range(n):
-            out[i, j] = 1.0 if i == j else 0.0
+    out[:, :] = B
     for c in range(n):
         p = c
-        big = abs(M[c, c])
+        big = abs(out[c, c])
         for r in range(c + 1, n):
-            if abs(M[r, c]) > big:
-                big = abs(M[r, c])
+            if abs(out[r, c]) > big:
+                big = abs(out[r, c])
                 p = r
         if big == 0.0 or not np.isfinite(big):
             return False
+        M[0, c] = p
         if p != c:
             for j in range(n):
-                t = M[c, j]
-                M[c, j] = M[p, j]
-                M[p, j] = t
                 t = out[c, j]
                 out[c, j] = out[p, j]
                 out[p, j] = t
-        piv = M[c, c]
+        inv = 1.0 / out[c, c]
+        out[c, c] = 1.0
         for j in range(n):
-            M[c, j] /= piv
-            out[c, j] /= piv
+            out[c, j] *= inv
         for r in range(n):
             if r != c:
-                g = M[r, c]
+                g = out[r, c]
                 if g != 0.0:
+                    out[r, c] = 0.0
                     for j in range(n):
-                        M[r, j] -= g * M[c, j]
                         out[r, j] -= g * out[c, j]
+    for c in range(n - 1, -1, -1):       # undo the row interchanges as column interchanges
+        p = int(M[0, c])
+        if p != c:
+            for i in range(n):
+                t = out[i, c]
+                out[i, c] = out[i, p]
+                out[i, p] = t
     return True
 
 
@@ -290,23 +293,29 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
         isbasic[basic[k]] = True
     since = 0
     it = 0
+    full = True
     while True:
-        # basic solution
-        for i in range(n):
-            rhs[i] = 0.0
-        for j in range(m):
-            if not isbasic[j]:
-                v = hi[j] if status[j] == UPPER else lo[j]
-                if v != 0.0:
-                    for i in range(n):
-                        rhs[i] -= AT[j, i] * v
+        # basic solution: from scratch at the start and after every refactorisation, else updated
+        # by the pivot (below); optimality is always confirmed from scratch with a fresh inverse
+        if full:
+            for i in range(n):
+                rhs[i] = 0.0
+            for j in range(m):
+                if not isbasic[j]:
+                    v = hi[j] if status[j] == UPPER else lo[j]
+                    if v != 0.0:
+                        for i in range(n):
+                            rhs[i] -= AT[j, i] * v
+            for k in range(n):
+                v = 0.0
+                for i in range(n):
+                    v += Binv[k, i] * rhs[i]
+                xB[k] = v
+            full = False
         r = -1
         worst = 0.0
         for k in range(n):
-            v = 0.0
-            for i in range(n):
-                v += Binv[k, i] * rhs[i]
-            xB[k] = v
+            v = xB[k]
             jb = basic[k]
             viol = 0.0
             if v < lo[jb] - ptol[jb]:
@@ -324,6 +333,7 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
             if not _invert(B, Binv, M):
                 return FAILED, it
             since = 0
+            full = True
             continue
         if it == max_iter:
             return FAILED, it
@@ -371,6 +381,8 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
         if q < 0:
             return INFEASIBLE_SUSPECT, it
         # pivot: q enters at row r, the leaving variable goes to its violated bound
+        xq = hi[q] if status[q] == UPPER else lo[q]        # the entering variable's current value
+        target = lo[jr] if sgn > 0 else hi[jr]
         if jr < mp1:
             status[jr] = LOWER if sgn > 0 else UPPER
         isbasic[jr] = False
@@ -384,6 +396,7 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
             if not _invert(B, Binv, M):
                 return FAILED, it
             since = 0
+            full = True
         else:
             _column(AT, q, col)
             for k in range(n):
@@ -394,6 +407,11 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
             piv = aq[r]
             if abs(piv) < 1e-14:
                 return FAILED, it
+            # primal step: x_q moves by theta, the other basic variables by -theta aq
+            theta = (xB[r] - target) / piv
+            for k in range(n):
+                xB[k] -= theta * aq[k]
+            xB[r] = xq + theta
             for i in range(n):
                 Binv[r, i] /= piv
             for k in range(n):
@@ -453,3 +471,177 @@ def solve_rows(A, lb, ub, Acol1, wscale, Rscale, absb, F, rows, start, SB, SS, S
             out_basic[t, k] = basic[k]
         for j in range(mp1):
             out_status[t, j] = status[j]
+
+
+@njit(cache=True, nogil=True, fastmath=_FM)
+def check_rows(F, rows, label, CW3, qv, wbasic, P3, isb, lb, ub, want_alpha, out_ok, out_w, out_alpha):
+    """The cached-basis test of ``DirectionSolver._try`` for many rows at once, each against its own basis.
+
+    Row ``rows[t]`` of ``F`` is checked against basis ``label[t]``: ``CW3[b, :qv[b]] @ f >= 0``
+    (primal feasibility with the tolerances folded in); where it holds, ``out_w[t] = max(CW3[b, qv[b]] @ f,
+    0)`` (0 if ``w`` is not basic) and, with ``want_alpha``, the activations of the basic solution as
+    ``DirectionSolver._alpha`` computes them (``x = P f``; ``x_j / f_j``, ``lb_j`` where ``f_j = 0``,
+    clipped to the bounds; ``isb[b, j]``: row ``j`` of ``P3[b]`` is a basic row, else ``P3[b, j, j] f_j``).
+    """
+    m = F.shape[1]
+    for t in range(rows.shape[0]):
+        r = rows[t]
+        b = label[t]
+        q = qv[b]
+        ok = True
+        for c in range(q):
+            v = 0.0
+            for j in range(m):
+                v += CW3[b, c, j] * F[r, j]
+            if not v >= 0.0:
+                ok = False
+                break
+        out_ok[t] = ok
+        if not ok:
+            continue
+        if wbasic[b]:
+            v = 0.0
+            for j in range(m):
+                v += CW3[b, q, j] * F[r, j]
+            out_w[t] = max(v, 0.0)
+        else:
+            out_w[t] = 0.0
+        if want_alpha:
+            for j in range(m):
+                fj = F[r, j]
+                if isb[b, j]:
+                    x = 0.0
+                    for i in range(m):
+                        x += P3[b, j, i] * F[r, i]
+                else:
+                    x = P3[b, j, j] * fj
+                if fj > 0.0:
+                    a = x / fj
+                else:
+                    a = lb[j]
+                out_alpha[t, j] = min(max(a, lb[j]), ub[j])
+
+
+@njit(cache=True, nogil=True)     # no fastmath: the same roundings as the numpy reference (e.g. no fused d_j s_j)
+def make_basis(A, lb, ub, Acol1, fscale, wscale, Rscale, b, bcols, brows, col, f, primal_tol, dual_tol, gap_rel,
+               max_cond, Binv, T, CW, dvec):
+    """The verification and linear maps of ``DirectionSolver._make_basis`` in compiled code.
+
+    ``bcols``/``brows``: sorted basic columns and row logicals; ``col`` (m + 1): per-column bound status,
+    adjusted in place (variables fixed at this ``f`` move to the bound that keeps the basis dual feasible).
+    Writes ``Binv`` (inverse of the basis matrix, columns in the order ``bcols``, ``brows``), ``T`` (basic
+    variables = ``T f``), the checks ``CW[:q]`` (feasible iff ``CW[:q] @ f >= 0``), ``CW[q]`` (``f -> w``)
+    and ``dvec`` (the dual bound ``w*(f) <= dvec . f``). Returns ``(ok, q, w_basic)``; ``ok`` is False for a
+    singular or ill-conditioned basis or one that is not dual feasible (``dual_tol`` relative to
+    ``|y|_inf |A_j|_1``).
+    """
+    n, mp1 = A.shape
+    m = mp1 - 1
+    nb = bcols.shape[0]
+    B = np.zeros((n, n))
+    for k in range(nb):
+        for i in range(n):
+            B[i, k] = A[i, bcols[k]]
+    for k in range(brows.shape[0]):
+        B[brows[k], nb + k] = -1.0
+    M = np.empty((n, n))
+    if not _invert(B, Binv, M):
+        return False, 0, False
+    nB = 0.0
+    nI = 0.0
+    for k in range(n):
+        s1 = 0.0
+        s2 = 0.0
+        for i in range(n):
+            s1 += abs(B[i, k])
+            s2 += abs(Binv[i, k])
+        nB = max(nB, s1)
+        nI = max(nI, s2)
+    if not np.isfinite(nI) or nB * nI > max_cond:
+        return False, 0, False
+    y = np.zeros(n)
+    for k in range(nb):
+        if bcols[k] == m:
+            for i in range(n):
+                y[i] += Binv[k, i]
+    ymax = 0.0
+    for i in range(n):
+        ymax = max(ymax, abs(y[i]))
+    d = np.empty(mp1)
+    for j in range(mp1):
+        t = 0.0
+        for i in range(n):
+            t += y[i] * A[i, j]
+        d[j] = (1.0 if j == m else 0.0) - t
+    for j in range(mp1):
+        if col[j] == BASIC:
+            continue
+        fixed = j < m and lb[j] * f[j] == ub[j] * f[j]
+        if fixed:
+            if d[j] > 0:
+                col[j] = UPPER
+            elif d[j] < 0:
+                col[j] = LOWER
+        tol = dual_tol * (ymax * Acol1[j] + (1.0 if j == m else 0.0))
+        if (col[j] == LOWER and d[j] > tol) or (col[j] == UPPER and d[j] < -tol):
+            return False, 0, False
+    if col[m] == UPPER:
+        return False, 0, False
+    s = np.empty(m)
+    for j in range(m):
+        s[j] = 0.0 if col[j] == BASIC else (ub[j] if col[j] == UPPER else lb[j])
+    for k in range(n):
+        for j in range(m):
+            t = 0.0
+            for i in range(n):
+                t += Binv[k, i] * -(A[i, j] * s[j])
+            if not np.isfinite(t):
+                return False, 0, False
+            T[k, j] = t
+    q = 0
+    for side in range(2):                               # lb_j f_j <= x_j <= ub_j f_j, lower rows first
+        for k in range(nb):
+            J = bcols[k]
+            if J >= m:
+                continue
+            for j in range(m):
+                e = 1.0 if j == J else 0.0
+                tolx = primal_tol * (abs(T[k, j]) + e + fscale[j])
+                if side == 0:
+                    CW[q, j] = T[k, j] - lb[J] * e + tolx
+                else:
+                    CW[q, j] = ub[J] * e - T[k, j] + tolx
+            q += 1
+    kw = -1
+    nw = 0
+    for k in range(nb):
+        if bcols[k] == m:
+            kw = k
+            nw += 1
+    w_basic = nw == 1
+    if w_basic:                                         # w >= 0
+        for j in range(m):
+            CW[q, j] = T[kw, j] + primal_tol * (abs(T[kw, j]) + wscale[j])
+        q += 1
+    anygap = False
+    for j in range(m):
+        dvec[j] = max(d[j] * lb[j], d[j] * ub[j])
+        g = 0.0 if col[j] == BASIC else dvec[j] - d[j] * s[j]
+        if g > 0:
+            anygap = True
+    if anygap:
+        for j in range(m):
+            g = 0.0 if col[j] == BASIC else dvec[j] - d[j] * s[j]
+            CW[q, j] = gap_rel * (T[kw, j] if w_basic else 0.0) - g
+        q += 1
+    for side in range(2):                               # basic row activities are 0
+        for k in range(brows.shape[0]):
+            r = brows[k]
+            for j in range(m):
+                t = T[nb + k, j]
+                tolr = primal_tol * (abs(t) + Rscale[r, j] + abs(b[r]) * wscale[j])
+                CW[q, j] = (t if side == 0 else -t) + tolr
+            q += 1
+    for j in range(m):
+        CW[q, j] = T[kw, j] if w_basic else 0.0
+    return True, q, w_basic
