@@ -240,6 +240,14 @@ def calibration_outputs_list():
     return out
 
 
+def clinician_outputs_list():
+    # outputs of workflow/rules/clinician.smk (its rule `clinician` builds them; in `all` with clinician.in_all)
+    out = []
+    for named in config["clinician"]["models"]:
+        out += [f"results/clinician/{named}/{f}" for f in ("deficit_summary.csv", "fig_deficit.png")]
+    return out
+
+
 def final_outputs():
     out = [
         "results/model/full_model.csv",
@@ -259,6 +267,8 @@ def final_outputs():
     out += [f"results/trials/{t}/quality_report.md" for t in config.get("trials", {}).get("datasets", {})]
     if config["calibration"]["in_all"]:
         out += calibration_outputs_list()
+    if config["clinician"]["in_all"]:
+        out += clinician_outputs_list()
     out += report_outputs()
     return out
 
