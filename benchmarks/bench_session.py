@@ -33,7 +33,8 @@ def bench(model: str, n_candidates: int, cache: str, config: str) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         s = Session.start(Path(tmp) / "s", SessionOptions(model=model, participant="bench", config=config,
-                                                          n_candidates=n_candidates, cache=cache),
+                                                          n_candidates=n_candidates, cache=cache,
+                                                          criterion="thesis"),   # the thesis's scheme
                           progress=lambda x: print(x, flush=True))
         t_start = time.perf_counter() - t0
         w, _, _ = solve(s.model, 0.9 * s.model.strengths[None], s.sim.U)
