@@ -237,6 +237,8 @@ def calibration_outputs_list():
     for named in config["calibration"]["models"]:
         out += [f"results/calibration/{named}/{f}" for f in ("sbc_coverage.csv", "fig_rank_histograms.png",
                                                              "fig_coverage.png")]
+    for named in config["calibration"].get("misfit", {}).get("models", []):
+        out.append(f"results/calibration/{named}/misfit_coverage.csv")
     return out
 
 

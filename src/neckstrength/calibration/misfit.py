@@ -117,7 +117,8 @@ def misfit_coverage(model: ReducedModel, element_model: ReducedModel, full_stren
                     w, _, st = solve(model, fg[None], U, return_alpha=False)
                 else:
                     fe, fg = rich_truth(full_strengths, model.S, settings.element_sd, rt)
-                    w, _, st = solve(element_model, fe[None], U_elements, return_alpha=False)
+                    f_el = np.sqrt(((fe[:, None] * element_model.S) ** 2).sum(axis=0))   # planar: sides merged
+                    w, _, st = solve(element_model, f_el[None], U_elements, return_alpha=False)
                 if np.all(st[0] == opt):
                     break
             else:
