@@ -6,7 +6,10 @@ muscles from the prior; forces with log-normal noise sd 0.05) the joint posterio
 tests chosen by the joint expected information gain, for every candidate count N in ``--n`` and two independent
 candidate sets per N (streams 'bench_clinician/candidates' + replicate). Recorded per step: the time to propose
 (joint EIG over the remaining directions) and to update (tempering, resample-move: the new candidates' wrenches in
-every direction). Recorded per run: P(deficit) and the group's posterior mean after t = 5, 10, n_max tests.
+every direction). Recorded per run: P(deficit) and the group's posterior mean after t = 5, 10, n_max tests, and a
+sampler check: the best candidate's log posterior density minus the truth's (negative: no candidate is as
+probable as the truth, the candidates missed the posterior's high-density region) and the weighted mean kernel
+log-likelihood of the candidates beside the truth's.
 
 "Stable" is read from two numbers per N: the spread of P(deficit) between the two candidate sets of the same
 participant (Monte Carlo error), and its distance from the largest N's answer.
@@ -90,10 +93,16 @@ def main(argv=None) -> int:
                                   "update_s": t2 - t1, "step_s": t2 - t0, "resamples": post.n_resamples - res0})
                     if t in checkpoints:
                         wts = post.weights()
+                        # sampler check: the truth's log posterior density (prior + kernel log-likelihood of the
+                        # tests so far) against the best candidate's; far below = the candidates missed the region
+                        ll_truth = sum(float(post._test_loglik(w[0, [x["i"]]], x["w_meas"])[0]) for x in post.tests)
+                        lpost = post.log_prior(post.F) + post.loglik
                         rows.append({"participant": p, "kind": kind, "true_ratio": float(definition.ratio(
                             fa[None], f0, names)[0]), "n": n, "replicate": r, "t": t,
                             "p_deficit": definition.probability(post.F, wts, f0, names),
-                            "ratio_mean": float(wts @ definition.ratio(post.F, f0, names))})
+                            "ratio_mean": float(wts @ definition.ratio(post.F, f0, names)),
+                            "best_minus_truth_logpost": float(lpost.max() - (post.log_prior(fa[None])[0] + ll_truth)),
+                            "mean_loglik": float(wts @ post.loglik), "truth_loglik": ll_truth})
                 print(f"participant {p} ({kind}) N {n} replicate {r}: P(deficit) "
                       + ", ".join(f"t={x['t']} {x['p_deficit']:.2f}" for x in rows[-len(checkpoints):]), flush=True)
     res, st = pd.DataFrame(rows), pd.DataFrame(steps)
@@ -106,7 +115,10 @@ def main(argv=None) -> int:
         dist = float(np.abs(mean_p - ref.xs(t, level="t").reindex(mean_p.index)).mean())
         ratio_spread = g.groupby("participant")["ratio_mean"].agg(lambda x: x.max() - x.min()).mean()
         out.append({"n": n, "t": t, "p_spread_between_replicates": spread, "p_dist_to_largest_n": dist,
-                    "ratio_mean_spread": ratio_spread})
+                    "ratio_mean_spread": ratio_spread,
+                    "median_best_minus_truth_logpost": float(g["best_minus_truth_logpost"].median()),
+                    "median_mean_loglik": float(g["mean_loglik"].median()),
+                    "median_truth_loglik": float(g["truth_loglik"].median())})
     stab = pd.DataFrame(out)
     tim = st.groupby("n").agg(step_median_s=("step_s", "median"), step_max_s=("step_s", "max"),
                               step_p90_s=("step_s", lambda x: float(np.quantile(x, 0.9))),
