@@ -48,10 +48,35 @@ def study_settings_for(config: Mapping, model_name: str):
     return deficit_definition(config), study, joint, thesis
 
 
-def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs, out_summary, out_fig) -> pd.DataFrame:
+def _signature(definition, study, joint, thesis, seed: int, model_name: str) -> str:
+    return hashlib.sha256(json.dumps(plain({"def": repr(definition), "study": repr(study), "joint": repr(joint),
+                                            "thesis": repr(thesis), "seed": seed, "model": model_name}),
+                                     sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _read_partials(out_runs, sig: str) -> pd.DataFrame:
+    """Rows of every finished participant in ``<out_runs>.partial*.csv`` written with signature ``sig`` (files
+    with another signature are removed: their settings are gone)."""
+    out = []
+    for f in sorted(Path(out_runs).parent.glob(Path(out_runs).name + ".partial*.csv")):
+        with f.open() as fh:
+            head = fh.readline().strip()
+        if head != f"# signature {sig}":
+            f.unlink()
+            continue
+        out.append(pd.read_csv(f, comment="#"))
+    return pd.concat(out, ignore_index=True) if out else pd.DataFrame()
+
+
+def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs, out_summary, out_fig,
+                      participants=None) -> pd.DataFrame | None:
     """Simulated participants with the deficit group at 25-50% of normal and normal ones: tests until
-    P(deficit) > p_alarm for each strategy, false alarms. Resumes from ``<out_runs>.partial.csv`` (one
-    participant at a time is appended) when its settings match."""
+    P(deficit) > p_alarm for each strategy, false alarms.
+
+    Each finished participant is appended to ``<out_runs>.partial.csv`` with a signature of the settings; a rerun
+    (and a run in another process) skips the participants found in any ``<out_runs>.partial*.csv`` with the same
+    signature. ``participants`` (indices) runs only those, into ``<out_runs>.partial.<first>-<last>.csv``, and
+    writes no outputs: a long run split over processes; the rule's own run then collects them."""
     from neckstrength.sequential.deficit import detection_summary, run_deficit_study
     from neckstrength.sequential.plots import fig_deficit_study
 
@@ -60,24 +85,25 @@ def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs
     definition, study, joint, thesis = study_settings_for(config, model_name)
     seed = int(config["seed"])
     f0 = model.strengths                                    # the session's prior mean (a = 1)
-    sig = hashlib.sha256(json.dumps(plain({"def": repr(definition), "study": repr(study), "joint": repr(joint),
-                                           "thesis": repr(thesis), "seed": seed, "model": model_name}),
-                                    sort_keys=True).encode()).hexdigest()[:16]
-    partial = Path(str(out_runs) + ".partial.csv")
-    done = pd.DataFrame()
-    if partial.exists():
-        head = partial.open().readline().strip()
-        if head == f"# signature {sig}":
-            done = pd.read_csv(partial, comment="#")
-            print(f"resuming: {done['participant'].nunique()} participants done in {partial}", flush=True)
-        else:
-            partial.unlink()
-    first = 0 if done.empty else int(done["participant"].max()) + 1
+    sig = _signature(definition, study, joint, thesis, seed, model_name)
+    chunk = participants is not None
+    if chunk:
+        participants = sorted(int(i) for i in participants)
+        partial = Path(f"{out_runs}.partial.{participants[0]}-{participants[-1]}.csv")
+    else:
+        partial = Path(str(out_runs) + ".partial.csv")
+    done = _read_partials(out_runs, sig)
+    if not done.empty:
+        print(f"resuming: {done['participant'].nunique()} participants done", flush=True)
     print(f"clinician study of {model_name}: {definition}\n{study}\njoint {joint}\nthesis N_F {thesis.n_candidates}, "
           f"N_S {thesis.n_sim}\nseed {seed}; streams 'clinician/{model_name}/<what>' + participant index", flush=True)
 
     def rng_for(what, i):
         return derive_rng(seed, f"clinician/{model_name}/{what}", i)
+
+    def done_elsewhere(i: int) -> bool:
+        now = _read_partials(out_runs, sig)
+        return not now.empty and i in set(now["participant"])
 
     t0 = time.time()
 
@@ -88,11 +114,13 @@ def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs
                 fh.write(f"# signature {sig}\n")
             one.to_csv(fh, header=new, index=False, float_format="%.6g")
 
-    rest = run_deficit_study(model, list(d["name"]), U, d["force_scale"].to_numpy(float), f0, definition, study,
-                             joint, thesis, rng_for, progress=lambda s: print(s, flush=True), first=first,
-                             on_participant=save)
-    parts = [done, rest]
-    df = pd.concat(parts, ignore_index=True)
+    run_deficit_study(model, list(d["name"]), U, d["force_scale"].to_numpy(float), f0, definition, study,
+                      joint, thesis, rng_for, progress=lambda s: print(s, flush=True), on_participant=save,
+                      participants=participants, skip=done_elsewhere)
+    if chunk:
+        return None
+    df = _read_partials(out_runs, sig).drop_duplicates(["participant", "run", "t"])
+    df = df.sort_values("participant", kind="stable").reset_index(drop=True)
     per, summ = detection_summary(df, study.p_alarm)
     hdr = [f"clinician loop on {model_name} (issue 18 item 4): P({definition.label()}) on the joint posterior after "
            f"every test; {study.n_deficit} participants with the group at {study.deficit_range[0]:.0%}-"
@@ -114,5 +142,6 @@ def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs
                       f"{study.n_deficit} deficit, {study.n_normal} normal; N {joint.n_candidates})")
     print(summ.to_string(index=False), flush=True)
     print(f"done in {time.time() - t0:.0f} s", flush=True)
-    partial.unlink(missing_ok=True)
+    for f in Path(out_runs).parent.glob(Path(out_runs).name + ".partial*.csv"):
+        f.unlink()
     return summ

@@ -151,10 +151,15 @@ def run_deficit_study(model: ReducedModel, directions: Sequence[str], U: np.ndar
                       f0: np.ndarray, definition: DeficitDefinition, study: StudySettings, joint: JointSettings,
                       thesis: SequentialSettings | None, rng_for: Callable[[str, int], np.random.Generator],
                       progress: Callable[[str], None] | None = None, first: int = 0,
-                      on_participant: Callable[[pd.DataFrame], None] | None = None) -> pd.DataFrame:
+                      on_participant: Callable[[pd.DataFrame], None] | None = None,
+                      participants: Sequence[int] | None = None,
+                      skip: Callable[[int], bool] | None = None) -> pd.DataFrame:
     """One row per participant, strategy run and test count t (0 = prior): P(deficit) on the joint posterior,
     the group's posterior mean, ESS share. Participant ``i`` draws from ``rng_for('truth', i)``; every run of a
-    participant starts from the same candidates (``rng_for('candidates', i)``)."""
+    participant starts from the same candidates (``rng_for('candidates', i)``). Participants before ``first`` are
+    skipped (resume); ``participants`` restricts the run to these indices (a chunk of a split run); ``skip(i)`` is
+    asked just before participant ``i`` (done by another process); ``on_participant`` receives each participant's
+    rows when they are complete."""
     from neckstrength.wrench import solve
     from neckstrength.wrench.batched import BasisCache
     from neckstrength.wrench.problem import STATUS_CODES
@@ -181,7 +186,10 @@ def run_deficit_study(model: ReducedModel, directions: Sequence[str], U: np.ndar
     rows = []
     t_start = time.time()
     kinds = ["deficit"] * study.n_deficit + ["normal"] * study.n_normal
-    for i in range(first, len(kinds)):
+    todo = range(first, len(kinds)) if participants is None else [i for i in participants if first <= i < len(kinds)]
+    for i in todo:
+        if skip is not None and skip(i):
+            continue
         kind = kinds[i]
         lo, hi = study.deficit_range if kind == "deficit" else study.normal_range
         rt = rng_for("truth", i)
