@@ -69,14 +69,16 @@ def _read_partials(out_runs, sig: str) -> pd.DataFrame:
 
 
 def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs, out_summary, out_fig,
-                      participants=None) -> pd.DataFrame | None:
+                      participants=None, interim_dir=None) -> pd.DataFrame | None:
     """Simulated participants with the deficit group at 25-50% of normal and normal ones: tests until
     P(deficit) > p_alarm for each strategy, false alarms.
 
     Each finished participant is appended to ``<out_runs>.partial.csv`` with a signature of the settings; a rerun
     (and a run in another process) skips the participants found in any ``<out_runs>.partial*.csv`` with the same
     signature. ``participants`` (indices) runs only those, into ``<out_runs>.partial.<first>-<last>.csv``, and
-    writes no outputs: a long run split over processes; the rule's own run then collects them."""
+    writes no outputs: a long run split over processes; the rule's own run then collects them. ``interim_dir``
+    runs nothing: the participants finished so far are summarised into that folder (headers say INTERIM, with
+    the counts), the partial files stay for the run to resume."""
     from neckstrength.sequential.deficit import detection_summary, run_deficit_study
     from neckstrength.sequential.plots import fig_deficit_study
 
@@ -101,8 +103,14 @@ def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs
     def rng_for(what, i):
         return derive_rng(seed, f"clinician/{model_name}/{what}", i)
 
+    interim = interim_dir is not None
+    runs_path = out_runs                                    # the partial files live beside the rule's output
+    if interim:
+        Path(interim_dir).mkdir(parents=True, exist_ok=True)
+        out_runs, out_summary, out_fig = (Path(interim_dir) / Path(x).name for x in (out_runs, out_summary, out_fig))
+
     def done_elsewhere(i: int) -> bool:
-        now = _read_partials(out_runs, sig)
+        now = _read_partials(runs_path, sig)
         return not now.empty and i in set(now["participant"])
 
     t0 = time.time()
@@ -114,12 +122,13 @@ def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs
                 fh.write(f"# signature {sig}\n")
             one.to_csv(fh, header=new, index=False, float_format="%.6g")
 
-    run_deficit_study(model, list(d["name"]), U, d["force_scale"].to_numpy(float), f0, definition, study,
-                      joint, thesis, rng_for, progress=lambda s: print(s, flush=True), on_participant=save,
-                      participants=participants, skip=done_elsewhere)
+    if not interim:
+        run_deficit_study(model, list(d["name"]), U, d["force_scale"].to_numpy(float), f0, definition, study,
+                          joint, thesis, rng_for, progress=lambda s: print(s, flush=True), on_participant=save,
+                          participants=participants, skip=done_elsewhere)
     if chunk:
         return None
-    df = _read_partials(out_runs, sig).drop_duplicates(["participant", "run", "t"])
+    df = _read_partials(runs_path, sig).drop_duplicates(["participant", "run", "t"])
     df = df.sort_values("participant", kind="stable").reset_index(drop=True)
     per, summ = detection_summary(df, study.p_alarm)
     hdr = [f"clinician loop on {model_name} (issue 18 item 4): P({definition.label()}) on the joint posterior after "
@@ -130,7 +139,10 @@ def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs
            f"moves, up to {joint.max_resamples} tempering steps; thesis criterion: Eq. 6.7 on its own scheme "
            f"(N_F {thesis.n_candidates}, N_S {thesis.n_sim}), order replayed on the joint posterior; seed {seed}",
            f"P(deficit) is checked here only on data simulated from the fitted model (well-specified); "
-           f"alarm = P(deficit) > {study.p_alarm}"]
+           f"alarm = P(deficit) > {study.p_alarm}",
+           ("INTERIM: " if interim else "") + f"participants included: "
+           f"{df.loc[df['kind'] == 'deficit', 'participant'].nunique()} deficit, "
+           f"{df.loc[df['kind'] == 'normal', 'participant'].nunique()} normal"]
     atomic_write_csv(df, out_runs, hdr, float_format="%.6g")
     atomic_write_csv(summ, out_summary, hdr + ["t_detect_*: tests until the alarm among deficit participants "
                                                "(runs without an alarm count as beyond t_max: inf); "
@@ -139,9 +151,12 @@ def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs
     atomic_write_csv(per, Path(out_runs).with_name("deficit_per_run.csv"), hdr, float_format="%.6g")
     fig_deficit_study(df, per, study.p_alarm, out_fig,
                       f"P({definition.label()}) on s3m24-simulated participants ({model_name}; "
-                      f"{study.n_deficit} deficit, {study.n_normal} normal; N {joint.n_candidates})")
+                      f"{per.loc[per['kind'] == 'deficit', 'participant'].nunique()} deficit, "
+                      f"{per.loc[per['kind'] == 'normal', 'participant'].nunique()} normal; N {joint.n_candidates})"
+                      + (" INTERIM" if interim else ""))
     print(summ.to_string(index=False), flush=True)
     print(f"done in {time.time() - t0:.0f} s", flush=True)
-    for f in Path(out_runs).parent.glob(Path(out_runs).name + ".partial*.csv"):
-        f.unlink()
+    if not interim:
+        for f in Path(runs_path).parent.glob(Path(runs_path).name + ".partial*.csv"):
+            f.unlink()
     return summ
