@@ -22,6 +22,7 @@ include: "workflow/rules/gap.smk"
 include: "workflow/rules/trials.smk"
 include: "workflow/rules/calibration.smk"
 include: "workflow/rules/postures.smk"
+include: "workflow/rules/clinician.smk"
 # keep report.smk the last include: its inputs enumerate the outputs of every chapter above
 include: "workflow/rules/report.smk"
 

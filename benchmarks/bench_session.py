@@ -37,7 +37,8 @@ def bench(model: str, n_candidates: int, cache: str, config: str, verbose: bool 
         c0 = time.process_time()
         t0 = time.perf_counter()
         s = Session.start(Path(tmp) / "s", SessionOptions(model=model, participant="bench", config=config,
-                                                          n_candidates=n_candidates, cache=cache),
+                                                          n_candidates=n_candidates, cache=cache,
+                                                          criterion="thesis"),   # the thesis's scheme
                           progress=lambda x: print(x, flush=True) if verbose else None)
         t_start = time.perf_counter() - t0
         c_start = time.process_time() - c0

@@ -248,7 +248,7 @@ def _cmd_session(args) -> int:
         opts = SessionOptions(model=args.model, participant=args.participant,
                               priorities=parse_priorities(args.priority), config=args.config,
                               n_candidates=args.n_candidates, prior_scale=args.prior_scale,
-                              gain_frac=args.stop_frac, cache=args.cache, seed=args.seed)
+                              gain_frac=args.stop_frac, cache=args.cache, seed=args.seed, criterion=args.criterion)
         s = Session.start(args.out, opts)
         return run_interactive(s) if args.action == "start" else replay_csv(s, args.csv)
     except (InputError, ValueError, FileExistsError, FileNotFoundError) as exc:
@@ -345,6 +345,10 @@ def build_parser() -> argparse.ArgumentParser:
                             "(default: config chapter6.stop.gain_frac)")
         a.add_argument("--cache", default=None, help="candidate-set cache folder (default results/session_cache)")
         a.add_argument("--seed", type=int, default=None, help="default: config seed")
+        a.add_argument("--criterion", default=None, choices=["joint_eig", "marginal_entropy", "thesis"],
+                       help="next-test criterion: joint_eig or marginal_entropy on the joint posterior, or thesis "
+                            "(Algorithms 7-9 on per-muscle PDFs); default: config clinician.session.<model> "
+                            "(s3m24: joint_eig), else thesis")
     a = ss.add_parser("resume", help="resume a session from its log")
     a.add_argument("--out", required=True)
     d.set_defaults(func=_cmd_session)

@@ -232,6 +232,20 @@ def joint_settings(config: Mapping, **over) -> JointSettings:
     return JointSettings(**kw)
 
 
+def deficit_definition(config: Mapping):
+    """``clinician.deficit``: the muscle group and threshold of P(deficit) (session screen and study)."""
+    from neckstrength.sequential.deficit import DeficitDefinition
+
+    d = config.get("clinician", {}).get("deficit", {})
+    return DeficitDefinition(group=tuple(d.get("group", ["mf"])), threshold=float(d.get("threshold", 0.6)))
+
+
+def session_defaults(config: Mapping, model_name: str) -> dict:
+    """``clinician.session.<model>``: the clinician session's posterior ('joint' or 'marginal', the thesis's
+    scheme), criterion and candidate count for ``model_name`` (empty: the thesis's scheme with chapter6 sizes)."""
+    return dict(config.get("clinician", {}).get("session", {}).get(model_name, {}))
+
+
 # --- the sim-to-real gap diagnosis ---------------------------------------------------------------------------
 
 

@@ -33,7 +33,7 @@ import re
 import sys
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Callable, Mapping, Sequence
@@ -45,7 +45,6 @@ from neckstrength.config import derive_rng, seed_sequence
 from neckstrength.io import MAX_PLAUSIBLE_FORCE_N
 from neckstrength.sequential.algorithms import (
     Proposal,
-    SequentialSettings,
     SequentialState,
     SimulatedSet,
     StrengthGrid,
@@ -61,6 +60,10 @@ LOG = "session.log.jsonl"
 
 
 MODELS = ("p2m7", "s3m24", "p3m12")
+
+
+# next-test criteria: on the joint posterior (joint_eig, marginal_entropy) or the thesis's scheme (Algorithms 7-9)
+CRITERIA = ("joint_eig", "marginal_entropy", "thesis")
 
 
 HELP = """Commands:
@@ -317,6 +320,8 @@ class SessionOptions:
     gain_frac: float | None = None                      # None = config chapter6.stop.gain_frac
     cache: str | None = None                            # candidate-set cache folder
     seed: int | None = None                             # None = config seed
+    criterion: str | None = None                        # joint_eig / marginal_entropy (joint posterior) or thesis
+                                                        # (Algorithms 7-9); None = config clinician.session.<model>
 
 
 class Session:
@@ -326,17 +331,29 @@ class Session:
         from neckstrength.config import (
             build_directions,
             chapter6_settings,
+            deficit_definition,
             full_model_from_config,
+            joint_settings,
             load_config,
             model_from_config,
+            session_defaults,
         )
         from neckstrength.estimation.datasets import model_directions_table
 
         self.out = Path(out)
-        self.opts = opts
         self.progress = progress
         cfg = load_config(opts.config)
         self.cfg = cfg
+        defaults = session_defaults(cfg, opts.model)
+        crit = opts.criterion or defaults.get("criterion", "thesis")
+        if crit not in CRITERIA:
+            raise ValueError(f"unknown criterion {crit!r}; known: {', '.join(CRITERIA)}")
+        if opts.n_candidates is None and crit != "thesis" and "n_candidates" in defaults:
+            opts = replace(opts, n_candidates=int(defaults["n_candidates"]))
+        self.opts = opts = replace(opts, criterion=crit)        # resolved: the header fixes the session's numbers
+        self.criterion = crit
+        self.joint = crit != "thesis"
+        self.deficit = deficit_definition(cfg)
         self.model = model_from_config(full_model_from_config(cfg), cfg, opts.model)
         self.muscles = list(self.model.muscle_names)
         unknown = set(opts.priorities) - set(self.muscles)
@@ -344,8 +361,13 @@ class Session:
             raise ValueError(f"priorities for unknown muscles {sorted(unknown)}; muscles of {opts.model}: "
                              f"{', '.join(self.muscles)}")
         over = {} if opts.n_candidates is None else {"n_candidates": int(opts.n_candidates)}
-        self.settings: SequentialSettings = chapter6_settings(cfg, opts.model, **over)
+        if self.joint and opts.priorities and crit == "joint_eig":
+            raise ValueError("muscle priorities (Eq. 6.8) need --criterion marginal_entropy or thesis; joint_eig "
+                             "scores the information about all muscles together")
+        self.settings = (joint_settings(cfg, **over) if self.joint
+                         else chapter6_settings(cfg, opts.model, **over))
         d, U = model_directions_table(self.model, build_directions(cfg))
+        self.U = U
         self.dirtable = d
         self.directions = list(d["name"])
         self.push = where_to_push(d, cfg.get("geometry", {}).get("test_point_spec"))
@@ -356,6 +378,20 @@ class Session:
         self.seed = int(cfg["seed"] if opts.seed is None else opts.seed)
         s = self.settings
         self.f0 = float(opts.prior_scale) * self.model.strengths
+        self.skipped: list[str] = []
+        self.entries: list[dict] = []          # effective measure/skip records, in order
+        self._proposals: dict[tuple, Proposal] = {}
+        self.log = SessionLog(self.out / LOG)
+        self._seq = 0
+        if self.joint:                         # the joint posterior: candidates drawn and solved at start (N x K)
+            self.sim = None
+            progress(f"joint posterior: {s.n_candidates} candidates x {len(self.directions)} directions "
+                     f"({self.model.name}), criterion {crit} ...")
+            t0 = time.time()
+            self.state = self._joint_state()
+            self.key = self.state.key
+            progress(f"  ready in {time.time() - t0:.1f} s")
+            return
         ss = seed_sequence(self.seed, f"session/{opts.model}")
         F = sample_prior(self.f0, s.prior_sd_rel, s.n_candidates, np.random.default_rng(ss))
         grid = StrengthGrid.around(self.f0, s.prior_sd_rel, s.n_bins, s.bin_range_sd)
@@ -364,11 +400,19 @@ class Session:
         self.cache_path = cache_dir / f"{opts.model}_N{s.n_candidates}_{s.n_wbins}w_{s.n_bins}b_{self.key}.npz"
         self.sim = self._candidate_set(U, F, grid)
         self.state = SequentialState(self.model, self.sim, d["force_scale"].to_numpy(float), s, seed=self.seed)
-        self.skipped: list[str] = []
-        self.entries: list[dict] = []          # effective measure/skip records, in order
-        self._proposals: dict[tuple, Proposal] = {}
-        self.log = SessionLog(self.out / LOG)
-        self._seq = 0
+
+    def _joint_state(self):
+        from neckstrength.sequential.joint_state import JointState
+
+        return JointState(self.model, self.directions, self.U, self.dirtable["force_scale"].to_numpy(float), self.f0,
+                          self.settings, derive_rng(self.seed, f"session/{self.opts.model}/joint"), self.criterion,
+                          self.deficit)
+
+    def _push(self, step) -> None:
+        if self.joint:
+            self.state.push(step)
+        else:
+            self.state.steps.append(step)
 
     # -- candidate set: built once, cached on disk by its key
     def _candidate_set(self, U, F, grid) -> SimulatedSet:
@@ -426,7 +470,9 @@ class Session:
         if not (out / HEADER).exists():
             raise FileNotFoundError(f"{out}: no {HEADER}; start a session with `neckstrength session start`")
         h = json.loads((out / HEADER).read_text())
-        s = cls(out, SessionOptions(**h["options"]), progress)
+        o = dict(h["options"])
+        o.setdefault("criterion", "thesis")     # sessions started before the joint posterior: the thesis's scheme
+        s = cls(out, SessionOptions(**o), progress)
         if s.key != h["sim_key"]:
             raise ValueError(f"{out}: the candidate set differs from the one the session started with (key "
                              f"{h['sim_key']}, now {s.key}); the config or the package changed")
@@ -443,7 +489,7 @@ class Session:
     def _apply(self, r: dict) -> None:
         if r["action"] == "measure":
             step = self.state.likelihood(r["direction"], r["force_N"], r.get("activations"))
-            self.state.steps.append(step)
+            self._push(step)
             if r["direction"] in self.skipped:
                 self.skipped.remove(r["direction"])
         elif r["action"] == "skip":
@@ -466,7 +512,7 @@ class Session:
             step = self.state.likelihood(e.direction, e.force, e.activations)
             rec = {"action": "measure", "direction": e.direction, "force_N": e.force, "activations": e.activations}
             self.log.append(self._stamp(rec))
-            self.state.steps.append(step)
+            self._push(step)
             if e.direction in self.skipped:
                 self.skipped.remove(e.direction)
             self.entries.append(rec)
@@ -509,8 +555,9 @@ class Session:
     def first_score(self) -> float:
         if () not in self._proposals:
             rng = derive_rng(self.seed, "", 6)
-            self._proposals[()] = SequentialState(self.model, self.sim, self.state.force_scale,
-                                                  self.settings).propose(rng, self.gamma)
+            fresh = (self._joint_state() if self.joint else
+                     SequentialState(self.model, self.sim, self.state.force_scale, self.settings))
+            self._proposals[()] = fresh.propose(rng, self.gamma)
         return float(self._proposals[()].table()["score"].max())
 
     def choice(self, p: Proposal | None) -> str | None:
@@ -521,9 +568,17 @@ class Session:
         t = t[~t["direction"].isin(self.skipped)]
         return None if t.empty else str(t.loc[t["score"].idxmax(), "direction"])
 
+    def _score_name(self) -> str:
+        if self.criterion == "joint_eig":
+            return "expected information gain"
+        return "expected entropy reduction"
+
     def recommendation(self, p: Proposal | None) -> tuple[bool, str]:
-        crit = (f"criterion: best expected entropy reduction (Eq. 6.7{'/6.8' if self.gamma is not None else ''} "
-                f"score) below {self.gain_frac:.0%} of the first step's")
+        what = {"joint_eig": "expected information gain about the joint strengths",
+                "marginal_entropy": "expected entropy reduction on the joint posterior (Eq. 6.7"
+                                    f"{'/6.8' if self.gamma is not None else ''} score)",
+                "thesis": f"expected entropy reduction (Eq. 6.7{'/6.8' if self.gamma is not None else ''} score)"}
+        crit = f"criterion: best {what[self.criterion]} below {self.gain_frac:.0%} of the first step's"
         if p is None:
             return True, "STOP: every direction has been tested"
         best_dir = self.choice(p)
@@ -535,9 +590,9 @@ class Session:
         if not self.state.tested:
             return False, f"continue: no measurement yet ({crit})"
         if ratio < self.gain_frac:
-            return True, (f"STOP recommended: best expected reduction {best:.3f} nats is {ratio:.0%} of the first "
-                          f"step's {first:.3f} ({crit})")
-        return False, (f"continue: best expected reduction {best:.3f} nats is {ratio:.0%} of the first step's "
+            return True, (f"STOP recommended: best {self._score_name()} {best:.3f} nats is {ratio:.0%} of the "
+                          f"first step's {first:.3f} ({crit})")
+        return False, (f"continue: best {self._score_name()} {best:.3f} nats is {ratio:.0%} of the first step's "
                        f"{first:.3f} ({crit})")
 
     def estimate(self) -> pd.DataFrame:
@@ -559,20 +614,61 @@ class Session:
         if p is not None:
             t = p.table()
             g = "Eq. 6.8 with priorities" if self.gamma is not None else "Eq. 6.7, mean over muscles"
-            lines.append(f"Expected entropy reduction of each remaining direction (Eq. 6.6; score {g}; nats):")
+            if self.criterion == "joint_eig":
+                lines.append("Expected information gain about the joint strengths of each remaining direction "
+                             "(joint posterior; nats):")
+            elif self.criterion == "marginal_entropy":
+                lines.append(f"Expected entropy reduction of each remaining direction (Eq. 6.6 on the joint "
+                             f"posterior; score {g}; nats):")
+            else:
+                lines.append(f"Expected entropy reduction of each remaining direction (Eq. 6.6; score {g}; nats):")
             marks = {d: "(skipped)" for d in self.skipped}
             order = t.sort_values("score", ascending=False, kind="stable")
             lines.append(bar_chart(list(order["direction"]), list(order["score"]), mark=prop, marks=marks))
         e = self.estimate()
         lines.append("Current estimate (posterior mean ± sd, N; prior in brackets). The sd assumes the model fits every "
                      "direction within the kernel width; on real participants it does not (docs/calibration.md): read it "
-                     "as a lower bound of the uncertainty, not a calibrated interval:")
+                     "as a lower bound of the uncertainty, not a calibrated interval"
+                     + (" (on s3m24 it is not calibrated even on simulated data at session sizes)" if self.joint
+                        else "") + ":")
         lw = max(len(m) for m in self.muscles)
         for r in e.to_dict("records"):
             lines.append(f"  {r['muscle']:<{lw}} {r['f_c']:8.1f} ± {r['sd_c']:6.1f}   "
                          f"[{r['f_0']:7.1f} ± {r['sd_0']:6.1f}]")
+        lines.extend(self.deficit_lines())
         lines.append(self.recommendation(p)[1])
         return "\n".join(lines)
+
+    # -- P(deficit) of the configured group (clinician.deficit), with its trend
+    def deficit_trend(self) -> list[float]:
+        """P(deficit) before any test and after each measurement so far (empty if the model lacks the group)."""
+        if not self.deficit.applies(self.muscles):
+            return []
+        if self.joint:
+            return [h["p_deficit"] for h in self.state.history]
+        from neckstrength.sequential.algorithms import posterior_from_loglik
+
+        cum = np.zeros_like(self.state.log_prior)
+        out = [self.deficit.probability_marginal(posterior_from_loglik(self.state.log_prior, cum), self.sim.grid,
+                                                 self.f0, self.muscles)]
+        for st in self.state.steps:
+            cum = cum + st.loglik
+            out.append(self.deficit.probability_marginal(posterior_from_loglik(self.state.log_prior, cum),
+                                                         self.sim.grid, self.f0, self.muscles))
+        return out
+
+    def deficit_lines(self) -> list[str]:
+        tr = self.deficit_trend()
+        if not tr:
+            return []
+        arrows = " -> ".join(f"{x:.2f}" for x in tr[-8:])
+        more = "... -> " if len(tr) > 8 else ""
+        how = (f"joint posterior, {self.settings.n_candidates} candidates" if self.joint
+               else "thesis scheme, the group's muscles taken as independent")
+        return [f"P(deep-extensor deficit: {self.deficit.label()}) = {tr[-1]:.2f}   trend (prior -> now): "
+                f"{more}{arrows}",
+                f"  ({how}. NOT a calibrated probability: checked only on simulated participants of this model "
+                f"(how often it finds a deficit: docs/clinician.md), never under model misfit)"]
 
     def prompt(self) -> str:
         prop = self.choice(self.proposal())
@@ -587,17 +683,26 @@ class Session:
         e = self.estimate()
         hdr = [f"clinician session: participant {self.opts.participant}, model {self.model.name}, "
                f"{len(self.state.tested)} of {len(self.directions)} directions: {', '.join(self.state.tested)}",
-               f"N_F {self.settings.n_candidates}, N_S {self.settings.n_sim}, bins {self.settings.n_bins}; prior f_0 = "
+               (f"joint posterior, criterion {self.criterion}, N {self.settings.n_candidates}, kernel noise_rel "
+                f"{self.settings.noise_rel}; " if self.joint else
+                f"N_F {self.settings.n_candidates}, N_S {self.settings.n_sim}, bins {self.settings.n_bins}; ")
+               + "prior f_0 = "
                f"{self.opts.prior_scale:g} f'_base, sd 0.3 f_0; seed {self.seed}; candidate key {self.key}",
                "f_c = posterior mean, sd_c = posterior sd (N; not calibrated under model misfit, docs/calibration.md); "
                "entropy in nats (Eq. 6.3)"]
         atomic_write_csv(e, self.out / "summary.csv", hdr, float_format="%.6g")
         # per-step trajectory (iteration 0 = prior)
         rows = []
-        steps = list(self.state.steps)
-        cum = np.zeros_like(self.state.log_prior)
+        pdef = self.deficit_trend()
+        if self.joint:
+            for t, h in enumerate(self.state.history):
+                for r in h["estimate"].to_dict("records"):
+                    rows.append({"step": t, "direction": h["direction"], "force_N": h["force"], "muscle": r["muscle"],
+                                 "f_c": r["f_c"], "sd_c": r["sd_c"], "entropy": r["entropy"]})
+        steps = [] if self.joint else list(self.state.steps)
         from neckstrength.sequential.algorithms import pdf_moments, posterior_from_loglik
-        for t in range(len(steps) + 1):
+        cum = None if self.joint else np.zeros_like(self.state.log_prior)
+        for t in range(0 if self.joint else len(steps) + 1):
             if t:
                 cum = cum + steps[t - 1].loglik
             pdf = posterior_from_loglik(self.state.log_prior, cum)
@@ -608,6 +713,8 @@ class Session:
                              "force_N": steps[t - 1].force if t else np.nan, "muscle": m, "f_c": E[j],
                              "sd_c": np.sqrt(V[j]), "entropy": H[j]})
         traj = pd.DataFrame(rows)
+        if pdef:
+            traj["p_deficit"] = np.asarray(pdef)[traj["step"].to_numpy()]
         atomic_write_csv(traj, self.out / "steps.csv", hdr[:2], float_format="%.6g")
         meas = [r for r in self.entries if r["action"] == "measure"]
         mdf = pd.DataFrame({"direction": [r["direction"] for r in meas], "force_N": [r["force_N"] for r in meas],
@@ -638,6 +745,12 @@ def _summary_figure(traj: pd.DataFrame, est: pd.DataFrame, path: Path, title: st
     ax[1].plot(h.index, h.values, "o-")
     ax[1].set_xticks(h.index, ["prior"] + labels[1:], rotation=60, fontsize=8)
     ax[1].set_ylabel("mean posterior entropy (nats)")
+    if "p_deficit" in traj.columns:
+        pd_ = traj.groupby("step")["p_deficit"].first()
+        tw = ax[1].twinx()
+        tw.plot(pd_.index, pd_.values, "s--", color="C3")
+        tw.set_ylim(0, 1)
+        tw.set_ylabel("P(deep-extensor deficit) (not calibrated)", color="C3")
     fig.suptitle(f"Clinician session: {title}")
     fig.tight_layout()
     tmp = path.with_name(path.name + ".tmp.png")

@@ -60,6 +60,34 @@ rule calibration_figures:
         "../scripts/calibration_figures.py"
 
 
+rule calibration_misfit:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+        directions="results/geometry/directions.csv",
+    output:
+        rows="results/calibration/{named}/misfit_rows.csv",
+        summary=report(
+            "results/calibration/{named}/misfit_coverage.csv",
+            caption="../report/calibration_misfit.rst",
+            category="Calibration",
+            labels={"model": "{named}", "table": "coverage under misspecification"},
+        ),
+    params:
+        settings=settings("calibration.misfit", "calibration.noise", "chapter6.bin_range_sd", "chapter6.emg_band",
+            "chapter6.joint", "chapter6.n_bins", "chapter6.prior_sd_rel", "data.model_dir", "data.thesis_dir",
+            "model", "seed"),
+    log:
+        "logs/calibration/{named}/misfit.log",
+    threads: 1
+    resources:
+        mem_mb=4000,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/calibration_misfit.py"
+
+
 rule calibration:
     input:
         calibration_outputs_list(),

@@ -237,6 +237,16 @@ def calibration_outputs_list():
     for named in config["calibration"]["models"]:
         out += [f"results/calibration/{named}/{f}" for f in ("sbc_coverage.csv", "fig_rank_histograms.png",
                                                              "fig_coverage.png")]
+    for named in config["calibration"].get("misfit", {}).get("models", []):
+        out.append(f"results/calibration/{named}/misfit_coverage.csv")
+    return out
+
+
+def clinician_outputs_list():
+    # outputs of workflow/rules/clinician.smk (its rule `clinician` builds them; in `all` with clinician.in_all)
+    out = []
+    for named in config["clinician"]["models"]:
+        out += [f"results/clinician/{named}/{f}" for f in ("deficit_summary.csv", "fig_deficit.png")]
     return out
 
 
@@ -276,6 +286,8 @@ def final_outputs():
     if config["calibration"]["in_all"]:
         out += calibration_outputs_list()
     out += postures_outputs()
+    if config["clinician"]["in_all"]:
+        out += clinician_outputs_list()
     out += report_outputs()
     return out
 

@@ -190,3 +190,37 @@ def fig_criteria_curves(curves: pd.DataFrame, entropy_label: str, title: str, ou
     fig.savefig(out, dpi=dpi)
     plt.close(fig)
 
+
+def fig_deficit_study(df: pd.DataFrame, per: pd.DataFrame, p_alarm: float, path, title: str) -> None:
+    """Clinician-loop study (issue 18): P(deficit) after t tests per strategy (median and quartiles over deficit
+    participants, median over normal ones) and the share of runs with an alarm (P > ``p_alarm``) by t."""
+    from neckstrength.plotting import plt   # Agg backend
+
+    fig, ax = plt.subplots(1, 2, figsize=(12, 4.6))
+    strategies = list(dict.fromkeys(df["strategy"]))
+    for k, s in enumerate(strategies):
+        col = f"C{k}"
+        for kind, ls in (("deficit", "-"), ("normal", "--")):
+            sub = df[(df["strategy"] == s) & (df["kind"] == kind)]
+            if sub.empty:
+                continue
+            q = sub.groupby("t")["p_deficit"].quantile([0.25, 0.5, 0.75]).unstack()
+            ax[0].plot(q.index, q[0.5], ls, color=col, label=f"{s} ({kind})")
+            if kind == "deficit":
+                ax[0].fill_between(q.index, q[0.25], q[0.75], color=col, alpha=0.15)
+            pr = per[(per["strategy"] == s) & (per["kind"] == kind)]
+            tmax = int(df["t"].max())
+            ts = np.arange(0, tmax + 1)
+            share = [(pr["t_detect"] <= t).mean() for t in ts]
+            ax[1].step(ts, share, ls, where="post", color=col, label=f"{s} ({kind})")
+    ax[0].axhline(p_alarm, color="0.4", lw=0.8, ls=":")
+    ax[0].set_xlabel("tests t")
+    ax[0].set_ylabel("P(deficit) (median; band: quartiles, deficit)")
+    ax[0].set_ylim(0, 1)
+    ax[0].legend(fontsize=7)
+    ax[1].set_xlabel("tests t")
+    ax[1].set_ylabel(f"share of runs with P(deficit) > {p_alarm:g} by t")
+    ax[1].set_ylim(0, 1)
+    ax[1].legend(fontsize=7, title="solid: detected; dashed: false alarm", title_fontsize=7)
+    fig.suptitle(title, fontsize=9)
+    _save(fig, path)

@@ -1,0 +1,162 @@
+"""Pipeline stage of the clinician-loop study (issue 18 item 4), one function per rule (workflow/rules/clinician.smk)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+from typing import Mapping
+
+import pandas as pd
+
+from neckstrength.config import (
+    chapter6_settings,
+    deficit_definition,
+    derive_rng,
+    full_model_from_config,
+    joint_settings,
+    model_from_config,
+    plain,
+    session_defaults,
+)
+from neckstrength.estimation.datasets import model_directions_table
+from neckstrength.io import atomic_write_csv
+from neckstrength.pipeline.common import load_directions
+
+
+def study_settings_for(config: Mapping, model_name: str):
+    """(DeficitDefinition, StudySettings, JointSettings, SequentialSettings) of ``clinician`` for ``model_name``:
+    the joint sampler of the clinician session (``clinician.session.<model>``), the study sizes
+    (``clinician.study``, per-model overrides in ``clinician.study.model_settings``)."""
+    from neckstrength.sequential.deficit import StudySettings
+
+    c = config["clinician"]
+    st = dict(c["study"])
+    st.update(st.pop("model_settings", {}).get(model_name, {}))
+    sess = session_defaults(config, model_name)
+    joint = joint_settings(config, **({"n_candidates": int(sess["n_candidates"])} if "n_candidates" in sess else {}))
+    thesis = chapter6_settings(config, model_name, n_candidates=int(st.pop("thesis_n_candidates")))
+    emg_groups = tuple(config["chapter6"].get("emg_groups", {}).get(model_name, []))
+    study = StudySettings(n_deficit=int(st["n_deficit"]), n_normal=int(st["n_normal"]),
+                          deficit_range=tuple(map(float, st["deficit_range"])),
+                          normal_range=tuple(map(float, st["normal_range"])), noise=float(st["noise"]),
+                          n_max=int(st["n_max"]), p_alarm=float(st["p_alarm"]),
+                          strategies=tuple(st["strategies"]), n_random=int(st["n_random"]),
+                          emg_groups=emg_groups if any("emg" in x for x in st["strategies"]) else (),
+                          emg_band=float(st["emg_band"]))
+    return deficit_definition(config), study, joint, thesis
+
+
+def _signature(definition, study, joint, thesis, seed: int, model_name: str) -> str:
+    return hashlib.sha256(json.dumps(plain({"def": repr(definition), "study": repr(study), "joint": repr(joint),
+                                            "thesis": repr(thesis), "seed": seed, "model": model_name}),
+                                     sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _read_partials(out_runs, sig: str) -> pd.DataFrame:
+    """Rows of every finished participant in ``<out_runs>.partial*.csv`` written with signature ``sig`` (files
+    with another signature are removed: their settings are gone)."""
+    out = []
+    for f in sorted(Path(out_runs).parent.glob(Path(out_runs).name + ".partial*.csv")):
+        with f.open() as fh:
+            head = fh.readline().strip()
+        if head != f"# signature {sig}":
+            f.unlink()
+            continue
+        out.append(pd.read_csv(f, comment="#"))
+    return pd.concat(out, ignore_index=True) if out else pd.DataFrame()
+
+
+def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs, out_summary, out_fig,
+                      participants=None, interim_dir=None) -> pd.DataFrame | None:
+    """Simulated participants with the deficit group at 25-50% of normal and normal ones: tests until
+    P(deficit) > p_alarm for each strategy, false alarms.
+
+    Each finished participant is appended to ``<out_runs>.partial.csv`` with a signature of the settings; a rerun
+    (and a run in another process) skips the participants found in any ``<out_runs>.partial*.csv`` with the same
+    signature. ``participants`` (indices) runs only those, into ``<out_runs>.partial.<first>-<last>.csv``, and
+    writes no outputs: a long run split over processes; the rule's own run then collects them. ``interim_dir``
+    runs nothing: the participants finished so far are summarised into that folder (headers say INTERIM, with
+    the counts), the partial files stay for the run to resume."""
+    from neckstrength.sequential.deficit import detection_summary, run_deficit_study
+    from neckstrength.sequential.plots import fig_deficit_study
+
+    model = model_from_config(full_model_from_config(config), config, model_name)
+    d, U = model_directions_table(model, load_directions(directions_csv))
+    definition, study, joint, thesis = study_settings_for(config, model_name)
+    seed = int(config["seed"])
+    f0 = model.strengths                                    # the session's prior mean (a = 1)
+    sig = _signature(definition, study, joint, thesis, seed, model_name)
+    chunk = participants is not None
+    if chunk:
+        participants = sorted(int(i) for i in participants)
+        partial = Path(f"{out_runs}.partial.{participants[0]}-{participants[-1]}.csv")
+    else:
+        partial = Path(str(out_runs) + ".partial.csv")
+    done = _read_partials(out_runs, sig)
+    if not done.empty:
+        print(f"resuming: {done['participant'].nunique()} participants done", flush=True)
+    print(f"clinician study of {model_name}: {definition}\n{study}\njoint {joint}\nthesis N_F {thesis.n_candidates}, "
+          f"N_S {thesis.n_sim}\nseed {seed}; streams 'clinician/{model_name}/<what>' + participant index", flush=True)
+
+    def rng_for(what, i):
+        return derive_rng(seed, f"clinician/{model_name}/{what}", i)
+
+    interim = interim_dir is not None
+    runs_path = out_runs                                    # the partial files live beside the rule's output
+    if interim:
+        Path(interim_dir).mkdir(parents=True, exist_ok=True)
+        out_runs, out_summary, out_fig = (Path(interim_dir) / Path(x).name for x in (out_runs, out_summary, out_fig))
+
+    def done_elsewhere(i: int) -> bool:
+        now = _read_partials(runs_path, sig)
+        return not now.empty and i in set(now["participant"])
+
+    t0 = time.time()
+
+    def save(one: pd.DataFrame) -> None:
+        new = not partial.exists()
+        with partial.open("a") as fh:
+            if new:
+                fh.write(f"# signature {sig}\n")
+            one.to_csv(fh, header=new, index=False, float_format="%.6g")
+
+    if not interim:
+        run_deficit_study(model, list(d["name"]), U, d["force_scale"].to_numpy(float), f0, definition, study,
+                          joint, thesis, rng_for, progress=lambda s: print(s, flush=True), on_participant=save,
+                          participants=participants, skip=done_elsewhere)
+    if chunk:
+        return None
+    df = _read_partials(runs_path, sig).drop_duplicates(["participant", "run", "t"])
+    df = df.sort_values("participant", kind="stable").reset_index(drop=True)
+    per, summ = detection_summary(df, study.p_alarm)
+    hdr = [f"clinician loop on {model_name} (issue 18 item 4): P({definition.label()}) on the joint posterior after "
+           f"every test; {study.n_deficit} participants with the group at {study.deficit_range[0]:.0%}-"
+           f"{study.deficit_range[1]:.0%} of baseline, {study.n_normal} at {study.normal_range[0]:.0%}-"
+           f"{study.normal_range[1]:.0%} (other muscles from the prior); forces with log-normal noise sd {study.noise}",
+           f"joint posterior: {joint.n_candidates} candidates, kernel noise_rel {joint.noise_rel}, {joint.n_moves} MH "
+           f"moves, up to {joint.max_resamples} tempering steps; thesis criterion: Eq. 6.7 on its own scheme "
+           f"(N_F {thesis.n_candidates}, N_S {thesis.n_sim}), order replayed on the joint posterior; seed {seed}",
+           f"P(deficit) is checked here only on data simulated from the fitted model (well-specified); "
+           f"alarm = P(deficit) > {study.p_alarm}",
+           ("INTERIM: " if interim else "") + f"participants included: "
+           f"{df.loc[df['kind'] == 'deficit', 'participant'].nunique()} deficit, "
+           f"{df.loc[df['kind'] == 'normal', 'participant'].nunique()} normal"]
+    atomic_write_csv(df, out_runs, hdr, float_format="%.6g")
+    atomic_write_csv(summ, out_summary, hdr + ["t_detect_*: tests until the alarm among deficit participants "
+                                               "(runs without an alarm count as beyond t_max: inf); "
+                                               "false_alarm_rate: share of normal participants' runs with an alarm "
+                                               "at any t"], float_format="%.4g")
+    atomic_write_csv(per, Path(out_runs).with_name("deficit_per_run.csv"), hdr, float_format="%.6g")
+    fig_deficit_study(df, per, study.p_alarm, out_fig,
+                      f"P({definition.label()}) on s3m24-simulated participants ({model_name}; "
+                      f"{per.loc[per['kind'] == 'deficit', 'participant'].nunique()} deficit, "
+                      f"{per.loc[per['kind'] == 'normal', 'participant'].nunique()} normal; N {joint.n_candidates})"
+                      + (" INTERIM" if interim else ""))
+    print(summ.to_string(index=False), flush=True)
+    print(f"done in {time.time() - t0:.0f} s", flush=True)
+    if not interim:
+        for f in Path(runs_path).parent.glob(Path(runs_path).name + ".partial*.csv"):
+            f.unlink()
+    return summ

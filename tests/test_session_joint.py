@@ -1,0 +1,59 @@
+"""Clinician session on s3m24 (issue 18 item 4): the joint posterior and joint EIG by default, P(deficit) with its
+trend on the screen, undo and resume on the joint posterior, the thesis's criterion as an option."""
+
+import io
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from neckstrength.session import Session, SessionOptions, run_interactive
+
+ROOT = Path(__file__).resolve().parents[1]
+CFG = str(ROOT / "config" / "config.ci.yaml")      # clinician.session.s3m24: joint_eig, N 300
+
+
+def _drive(s, lines):
+    it = iter(lines)
+
+    def inp(_prompt):
+        try:
+            return next(it)
+        except StopIteration:
+            raise EOFError from None
+
+    buf = io.StringIO()
+    code = run_interactive(s, inp, buf)
+    return code, buf.getvalue()
+
+
+def test_s3m24_session_defaults_to_joint_eig_and_shows_deficit_trend(tmp_path):
+    out = tmp_path / "j"
+    s = Session.start(out, SessionOptions(model="s3m24", config=CFG, cache=str(tmp_path / "c")), progress=lambda x: None)
+    assert s.joint and s.criterion == "joint_eig" and s.settings.n_candidates == 300
+    hdr = json.loads((out / "session.json").read_text())
+    assert hdr["options"]["criterion"] == "joint_eig"             # resolved default recorded for resume
+    code, text = _drive(s, ["150", "undo", "150", "measure backLow 120"])
+    assert code == 3
+    assert "Expected information gain about the joint strengths" in text
+    assert "P(deep-extensor deficit: mf < 60% of baseline)" in text and "NOT a calibrated probability" in text
+    last = text.rsplit("P(deep-extensor deficit", 1)[1].split("\n")[0]
+    assert last.count("->") == 3 and "trend (prior -> now)" in last     # prior + 2 measurements after the undo
+    assert len(s.state.tested) == 2
+    r = Session.resume(out, progress=lambda x: None)
+    assert r.render().split("===", 2)[2] == s.render().split("===", 2)[2]   # same proposal, estimate, P(deficit)
+    r.write_summary()
+    steps = pd.read_csv(out / "steps.csv", comment="#")
+    assert sorted(steps["step"].unique()) == [0, 1, 2] and steps["p_deficit"].between(0, 1).all()
+
+
+def test_s3m24_thesis_criterion_stays_available(tmp_path):
+    s = Session.start(tmp_path / "t", SessionOptions(model="s3m24", config=CFG, criterion="thesis", n_candidates=2000,
+                                                    cache=str(tmp_path / "c")), progress=lambda x: None)
+    assert not s.joint and s.sim is not None
+    text = s.render()
+    assert "Eq. 6.6; score Eq. 6.7" in text and "thesis scheme" in text and "P(deep-extensor deficit" in text
+    with pytest.raises(ValueError, match="priorities"):
+        Session.start(tmp_path / "p", SessionOptions(model="s3m24", config=CFG, priorities={"mf-R": 1.0}),
+                      progress=lambda x: None)

@@ -1,0 +1,46 @@
+# Beyond the thesis (issue 18 item 4): the clinician loop on the joint posterior. Simulated participants with a
+# deep-extensor deficit and normal ones: tests until P(deficit) > p_alarm per strategy, false alarms.
+# Target `clinician` builds every model in config clinician.models; with clinician.in_all also part of `all`.
+
+
+rule clinician_deficit:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+        directions="results/geometry/directions.csv",
+    output:
+        runs="results/clinician/{named}/deficit_runs.csv",
+        per_run="results/clinician/{named}/deficit_per_run.csv",
+        summary=report(
+            "results/clinician/{named}/deficit_summary.csv",
+            caption="../report/clinician_deficit.rst",
+            category="Clinician loop",
+            labels={"model": "{named}", "table": "tests until P(deficit) > 0.9"},
+        ),
+        fig=report(
+            "results/clinician/{named}/fig_deficit.png",
+            caption="../report/clinician_deficit.rst",
+            category="Clinician loop",
+            labels={"model": "{named}", "figure": "P(deficit) by test"},
+        ),
+    params:
+        settings=settings("clinician.deficit", "clinician.session.{named}", "clinician.study",
+            "chapter6.bin_range_sd", "chapter6.emg_band", "chapter6.emg_groups.{named}", "chapter6.joint",
+            "chapter6.n_bins", "chapter6.prior_sd_rel", "chapter6.n_sim", "chapter6.epsilon", "chapter6.q",
+            "chapter6.n_wbins", "chapter6.alpha_min", "chapter6.likelihood", "chapter6.likelihood_floor",
+            "chapter6.predictive", "chapter6.n_candidates", "chapter6.model_settings.{named}", "data.model_dir",
+            "data.thesis_dir", "model", "seed"),
+    log:
+        "logs/clinician/{named}/deficit.log",
+    threads: 1
+    resources:
+        mem_mb=4000,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/clinician_deficit.py"
+
+
+rule clinician:
+    input:
+        clinician_outputs_list(),
