@@ -198,6 +198,7 @@ def diagnosis_settings(config: Mapping, effects: Sequence[str] | None = None) ->
                              pairs_top=g["pairs_top"], pair_grid_top=g["pair_grid_top"], penalty=g["penalty"],
                              epsilon=config["chapter5"]["epsilon"], bootstrap=g["bootstrap"], starts=g["starts"],
                              start_spread=g["start_spread"], refine_iter=g["refine_iter"],
+                             refine_starts=g.get("refine_starts", 1),
                              reach_samples=g["reach_samples"], reach_iter=g["reach_iter"], seed=config["seed"], fit=fit)
 
 
@@ -284,6 +285,7 @@ def gap_settings_text(config: Mapping, s: DiagnosisSettings) -> str:
                       f"(spread {s.start_spread} in log strength); pairs of the best {s.pairs_top} effects on the "
                       f"best {s.pair_grid_top} grid points of each",
                       f"- fit: {json.dumps(plain(g['fit']))}; penalty {s.penalty} per extra parameter; bootstrap {s.bootstrap}",
-                      f"- effect-parameter refinement iterations (all-direction fit): {s.refine_iter}",
+                      f"- effect-parameter refinement iterations (all-direction fit): {s.refine_iter} ({s.refine_starts} start(s) "
+                      "per trial)",
                       f"- reach envelope: {s.reach_samples} samples, {s.reach_iter} gradient iterations",
                       f"- seed {config['seed']}"])

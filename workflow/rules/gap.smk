@@ -49,8 +49,9 @@ rule gap_diagnose:
     params:
         settings=settings("chapter5", "data", "gap.bootstrap", "gap.effect_settings", "gap.effects", "gap.fit",
             "gap.folds", "gap.grid_points", "gap.measurements", "gap.pair_grid_top", "gap.pairs_top",
-            "gap.penalty", "gap.reach_iter", "gap.reach_samples", "gap.refine_iter", "gap.shoulder_muscles",
-            "gap.start_spread", "gap.starts", "gap.tie_sides", "geometry.head.centre", "model", "seed"),
+            "gap.penalty", "gap.reach_iter", "gap.reach_samples", "gap.refine_iter", "gap.refine_starts",
+            "gap.shoulder_muscles", "gap.start_spread", "gap.starts", "gap.tie_sides", "geometry.head.centre",
+            "model", "seed"),
     log:
         "logs/gap/{model}/{dataset}/diagnose.log",
     threads: 1
@@ -126,8 +127,8 @@ rule gap_benchmark:
             "gap.benchmark.replicates", "gap.benchmark.starts", "gap.benchmark.strength_spread",
             "gap.bootstrap", "gap.effect_settings", "gap.effects", "gap.fit", "gap.folds", "gap.grid_points",
             "gap.pair_grid_top", "gap.pairs_top", "gap.penalty", "gap.reach_iter", "gap.reach_samples",
-            "gap.refine_iter", "gap.shoulder_muscles", "gap.start_spread", "gap.starts", "gap.tie_sides",
-            "geometry.head.centre", "model", "seed"),
+            "gap.refine_iter", "gap.refine_starts", "gap.shoulder_muscles", "gap.start_spread", "gap.starts",
+            "gap.tie_sides", "geometry.head.centre", "model", "seed"),
     log:
         "logs/gap/{model}/benchmark.log",
     threads: 1

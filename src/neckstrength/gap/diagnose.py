@@ -68,6 +68,7 @@ class DiagnosisSettings:
     starts: int = 4
     start_spread: float = 0.5
     refine_iter: int = 0
+    refine_starts: int = 1
     reach_samples: int = 1500
     reach_iter: int = 8
     seed: int = 0
@@ -113,6 +114,7 @@ class _Engine:
         self.cache = make_cache()
         self.F = int(folds.max()) + 1          # folds: (data sets x directions)
         self.nd = len(data)
+        self.names = [d.name for d in data]
         K = ctx.K
         T, W, ds, fo = [], [], [], []
         for i, d in enumerate(data):
@@ -149,8 +151,10 @@ class _Engine:
         effs, ths = self.effects_of(key)
         return Simulator(self.ctx, compose(self.ctx, effs, ths), None, self.s.fit.chunk_size)
 
-    def evaluate(self, key: tuple, warm: np.ndarray, mask: np.ndarray | None = None) -> dict:
-        """Fit the problems in ``mask`` for ``key`` with ``starts`` starts (warm start + perturbations)."""
+    def evaluate(self, key: tuple, warm: np.ndarray, mask: np.ndarray | None = None, starts: int | None = None) -> dict:
+        """Fit the problems in ``mask`` for ``key`` with ``starts`` starts (warm start + perturbations; the
+        perturbations of a problem derive from the seed, the key, its data set's name and fold, so they do not
+        depend on which other problems are fitted with it)."""
         mask = np.ones(self.P, bool) if mask is None else mask
         old = self.results.get(key)
         if old is not None:
@@ -163,20 +167,24 @@ class _Engine:
             self.results[key] = old
         if len(idx) == 0:
             return old
-        S = max(1, int(self.s.starts))
-        rng = derive_rng(self.s.seed, repr(key))
+        S = max(1, int(self.s.starts if starts is None else starts))
         phi0 = np.repeat(warm[idx], S, axis=0)
-        pert = rng.normal(0.0, self.s.start_spread, phi0.shape)
-        pert[::S] = 0.0
+        pert = np.zeros(phi0.shape)
+        if S > 1:
+            for a, q in enumerate(idx):
+                rng = derive_rng(self.s.seed, f"gap/starts/{key!r}/{self.names[self.pds[q]]}", int(self.pfold[q]) + 1)
+                pert[a * S + 1:(a + 1) * S] = rng.normal(0.0, self.s.start_spread, (S - 1, self.p))
         phi0 = phi0 + pert
         rep = lambda a: np.repeat(a[idx], S, axis=0)  # noqa: E731
         sim = self.sim(key)
         sim.refresh(sim.muscles(phi0))       # candidate wrenches that are maximal at the start points
-        res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), phi0, rep(self.prior), self.s.fit)
+        grad = sim.forces_grad_phi if self.s.fit.exact_gradient else None
+        res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), phi0, rep(self.prior), self.s.fit, grad)
         for _ in range(self.max_rounds):     # active set of candidate wrenches (direction_tolerance)
             if not sim.refresh(sim.muscles(res.phi)):
                 break
-            res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), res.phi, rep(self.prior), self.s.fit)
+            res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), res.phi, rep(self.prior), self.s.fit,
+                                grad)
         if sim.inst.J > 1:
             res.forces = sim.run(sim.muscles(res.phi))[0]
             res.loss, res.sse = _train_loss(res.forces, rep(self.T), rep(self.W), res.phi, rep(self.prior),
@@ -224,14 +232,20 @@ def _cv_predictions(engine: _Engine, chosen: list[tuple], i: int) -> np.ndarray:
     return pred
 
 
-def _refine(engine: _Engine, effs: list[Effect], start: list[tuple], iters: int, datasets: set[int]) -> list[tuple]:
-    """Local pattern search on the effect parameters of the all-direction problems of ``datasets``."""
-    full_p = [p for p in np.nonzero(engine.pfold < 0)[0] if engine.pds[p] in datasets]
+def _refine(engine: _Engine, effs: list[Effect], start: list[tuple], iters: int, datasets: set[int],
+            starts: int = 1) -> list[tuple]:
+    """Local pattern search on the effect parameters of the all-direction problems of ``datasets``.
+
+    Each iteration tries, for every problem at once, a step of its current size along every parameter axis in
+    both directions; the trial keys of all problems are fitted together (one fit per key for the problems that
+    try it, warm-started from each problem's current fit, ``starts`` starts). A problem moves to its best trial
+    if that lowers its training loss, else halves its steps."""
+    full_p = [int(p) for p in np.nonzero(engine.pfold < 0)[0] if engine.pds[p] in datasets]
     cur = list(start)
     lower = np.concatenate([e.lower for e in effs])
     upper = np.concatenate([e.upper for e in effs])
-    step = (upper - lower) / max(2 * (engine.s.grid_points - 1), 2)
-    steps = [step.copy() for _ in full_p]
+    step0 = (upper - lower) / max(2 * (engine.s.grid_points - 1), 2)
+    steps = {p: step0.copy() for p in full_p}
     sizes = [len(e.neutral) for e in effs]
 
     def to_key(vec):
@@ -246,31 +260,35 @@ def _refine(engine: _Engine, effs: list[Effect], start: list[tuple], iters: int,
         return np.concatenate([np.array(d.get(e.name, tuple(e.neutral)), float) for e in effs])
 
     for _ in range(iters):
-        moved = False
-        for a, p in enumerate(full_p):
-            if np.all(steps[a] < 1e-3 * (upper - lower)):
-                continue
+        live = [p for p in full_p if not np.all(steps[p] < 1e-3 * (upper - lower))]
+        if not live:
+            break
+        trials: dict[int, list[tuple]] = {}
+        masks: dict[tuple, np.ndarray] = {}
+        warm = np.array(engine.prior, float)
+        for p in live:
             v0 = vec_of(cur[p])
-            best_key, best_loss = cur[p], engine.results[cur[p]]["loss"][p]
+            warm[p] = engine.results[cur[p]]["phi"][p]
             for ax in range(len(v0)):
                 for sgn in (-1.0, 1.0):
                     v = v0.copy()
-                    v[ax] = np.clip(v[ax] + sgn * steps[a][ax], lower[ax], upper[ax])
+                    v[ax] = np.clip(v[ax] + sgn * steps[p][ax], lower[ax], upper[ax])
                     key = to_key(v)
-                    if key == cur[p]:
+                    if key == cur[p] or key in trials.get(p, []):
                         continue
-                    mask = np.zeros(engine.P, bool)
-                    mask[p] = True
-                    r = engine.evaluate(key, engine.results[cur[p]]["phi"], mask)
-                    if r["loss"][p] < best_loss - 1e-12:
-                        best_key, best_loss = key, r["loss"][p]
+                    trials.setdefault(p, []).append(key)
+                    masks.setdefault(key, np.zeros(engine.P, bool))[p] = True
+        for key, mask in masks.items():
+            engine.evaluate(key, warm, mask, starts=starts)
+        for p in live:
+            best_key, best_loss = cur[p], engine.results[cur[p]]["loss"][p]
+            for key in trials.get(p, []):
+                if engine.results[key]["loss"][p] < best_loss - 1e-12:
+                    best_key, best_loss = key, engine.results[key]["loss"][p]
             if best_key != cur[p]:
                 cur[p] = best_key
-                moved = True
             else:
-                steps[a] = steps[a] / 2
-        if not moved and all(np.all(st < 1e-3 * (upper - lower)) for st in steps):
-            break
+                steps[p] = steps[p] / 2
     return cur
 
 
@@ -521,7 +539,7 @@ def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSett
         if c == "none" or s.refine_iter <= 0:
             continue
         effs = [eng.registry[n] for n in c.split("+")]
-        refined[c] = _refine(eng, effs, list(selections[c]), s.refine_iter, cand_datasets[c])
+        refined[c] = _refine(eng, effs, list(selections[c]), s.refine_iter, cand_datasets[c], s.refine_starts)
     if s.refine_iter > 0:
         say(f"effect parameters refined ({eng.n_fits} fits)")
     # ---- per data set results
