@@ -215,7 +215,8 @@ def calibration_settings(config: Mapping) -> CalibrationSettings:
                                power_sizes=tuple(float(u) for u in c.get("power_sizes", (0.25, 0.5, 1.0))),
                                power_replicates=int(c.get("power_replicates", 5)),
                                power_target=float(c.get("power_target", 0.8)),
-                               strength_spread=float(c.get("strength_spread", 0.3)))
+                               strength_spread=float(c.get("strength_spread", 0.3)),
+                               starts=int(c.get("starts", 1)), max_iter=int(c.get("max_iter", 15)))
 
 
 def benchmark_settings(config: Mapping) -> BenchmarkSettings:
@@ -311,5 +312,6 @@ def gap_settings_text(config: Mapping, s: DiagnosisSettings) -> str:
                       f"{1 / (s.calibration.replicates + 1):.3g}), alpha {s.calibration.alpha}, noise "
                       f"{s.calibration.noise}; power at sizes {list(s.calibration.power_sizes)} with "
                       f"{s.calibration.power_replicates} replicates each (target {s.calibration.power_target}); "
-                      "simulated data fitted exactly as the measured data",
+                      f"screen (measured and simulated data alike): {s.calibration.starts} start(s), max_iter "
+                      f"{s.calibration.max_iter}",
                       f"- seed {config['seed']}"])

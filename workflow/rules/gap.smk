@@ -2,6 +2,10 @@
 # withheld and compared afterwards), a pooled table over the data sets, and the withheld-effect benchmark.
 
 
+# results/gap/{model}/benchmark/summary.json is the benchmark's, not a data set named 'benchmark'
+ruleorder: gap_benchmark > gap_diagnose
+
+
 rule gap_diagnose:
     input:
         MODEL_TABLES,

@@ -4,11 +4,14 @@
 all directions; strengths drawn from the fit's Laplace uncertainty, :func:`truth_strengths`) with log-normal
 noise of SD ``sigma``: 'heldout' = the root mean square of the log held-out
 residuals of the best single candidate (the candidate with the smallest one; base model or one effect), or a
-number given by the user (e.g. from repeat trials). Each is screened exactly as the data: the base model and
-every single effect on its grid, fitted from the same start point with the same starts and iterations on the
-same fold split, each fold choosing its grid point by training loss, scored by the held-out gap ``1 - D_cv``.
-(Fitting them from their truth instead would make their fits better than the data's and the test anti-
-conservative: an effect would "improve" the data merely by reaching a better optimum.)
+number given by the user (e.g. from repeat trials). The measured data set and its simulated ones are *screened*
+alike, in one batch: the base model and every single effect on its grid, fitted from the same start point with
+the calibration's ``starts`` and ``max_iter`` on the data set's fold split, each fold choosing its grid point by
+training loss, scored by the held-out gap ``1 - D_cv``. The decision uses the measured data set's screen scores,
+so that its statistic and the null's come from the same procedure (fitting the simulated data from their truth,
+or with other settings than the data, would make the test anti-conservative: an effect would "improve" the
+data merely by reaching a better optimum). The full diagnosis (more starts, pairs, refinement) gives the
+ranking, the fitted sizes and the "where" tables.
 
 **Decision (maxT).** Per effect ``e`` the improvement ``delta_e = gap_none - gap_e``; standardised by its
 null mean and SD, ``z_e = (delta_e - mu_e) / sd_e``; ``T = max_e z_e``. The adjusted p-value of the data set is
@@ -51,7 +54,7 @@ from neckstrength.gap.engine import (
     cv_predictions,
     single_effect_grids,
 )
-from neckstrength.gap.fit import Simulator
+from neckstrength.gap.fit import FitSettings, Simulator
 from neckstrength.seeds import derive_rng
 
 
@@ -96,10 +99,12 @@ def screen_scores(ctx: GapContext, T: np.ndarray, preds: dict[str, np.ndarray], 
 
 def screen(ctx: GapContext, data: list[BlindData], folds: np.ndarray, effects: list[Effect],
            s: DiagnosisSettings, say=None) -> Screen:
-    """Base model and every single effect on its grid, cross-validated on ``folds`` (data sets x K), fitted
-    exactly as the diagnosis fits the measured data (same start point, starts and iterations), so that a
-    simulated data set's scores are draws of what the diagnosis computes for data of that kind."""
-    eng = _Engine(ctx, data, s, folds, {e.name: e for e in effects}, full=False)
+    """Base model and every single effect on its grid, cross-validated on ``folds`` (data sets x K), all data
+    sets fitted alike (the diagnosis's start point, the calibration's ``starts`` and ``max_iter``)."""
+    cs = s.calibration
+    s2 = DiagnosisSettings(**{**s.__dict__, "starts": cs.starts,
+                              "fit": FitSettings(**{**s.fit.__dict__, "max_iter": cs.max_iter})})
+    eng = _Engine(ctx, data, s2, folds, {e.name: e for e in effects}, full=False)
     eng.evaluate((), eng.prior)
     keys = single_effect_grids(eng, effects, say, tag="  simulated data: ")
     preds = {c: cv_predictions(eng, k) for c, k in keys.items()}
@@ -142,6 +147,8 @@ class Calibration:
     gap_null: np.ndarray         # (R x (1 + E)), 'none' first
     structure_null: np.ndarray   # (R x (1 + E))
     power: pd.DataFrame
+    gap_obs: np.ndarray          # (1 + E) the measured data set's screen: held-out gaps
+    structure_obs: np.ndarray    # (1 + E) and plane structure of its held-out log residuals
 
     def decide(self, gap: np.ndarray) -> dict:
         """``gap``: held-out gaps ('none' first, then the effects in ``effects`` order) of one data set."""
@@ -226,8 +233,11 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
                     meta.append((i, "power", e.name, float(u)) if ok else (i, "skip", e.name, float(u)))
                     if ok:
                         sims.append(BlindData(f"{n}/power/{e.name}/{u:.6g}/{r}", f * np.exp(sig[i][0] * z[r])))
+    for i, n in enumerate(names):                          # the measured data sets, screened alike
+        sims.append(BlindData(n, T[i]))
+        meta.append((i, "observed", "", 0.0))
     meta_ok = [m for m in meta if m[1] != "skip"]
-    say(f"calibration: {len(sims)} simulated data sets ({R} noise-only per data set, "
+    say(f"calibration: {len(sims) - nd} simulated data sets ({R} noise-only per data set, "
         f"{len(effects)} effects x {len(cs.power_sizes)} sizes x {cs.power_replicates} with an effect); noise "
         + ", ".join(f"{n} {sg[0]:.3f} ({sg[1]})" for n, sg in zip(names, sig)))
     if sims:
@@ -241,8 +251,9 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
         mu = delta_null.mean(axis=0)
         sd = np.maximum(delta_null.std(axis=0, ddof=1) if R > 1 else np.zeros(len(E)), cs.sd_floor)
         _, _, t_null, _ = maxt(delta_null, mu, sd, np.zeros(0))
+        jo = [j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "observed"][0]
         cal = Calibration(sig[i][0], sig[i][1], E, delta_null, mu, sd, t_null, gap_null, sc.structure[rows],
-                          pd.DataFrame())
+                          pd.DataFrame(), sc.gap[jo], sc.structure[jo])
         prow = []
         for e in effects:
             for u in cs.power_sizes:

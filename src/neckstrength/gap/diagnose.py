@@ -449,10 +449,7 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
         chosen = best_score
         decision = f"best score: {chosen} (uncalibrated: no noise-only replicates)"
     else:
-        from neckstrength.gap.calibrate import plane_indicators, plane_structure
-
-        gaps = np.array([1 - dcv[c].mean() for c in singles])
-        dec = cal.decide(gaps)
+        dec = cal.decide(cal.gap_obs)                  # the screen's scores (fitted like the null's)
         b = dec["best"]
         neutral = dict(refined[b][pfull]).get(b) is None
         pos = dec["delta"][cal.effects.index(b)] > 0
@@ -546,9 +543,8 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
         from neckstrength.gap.calibrate import power_summary
 
         j = singles.index(chosen)
-        lr = np.log(np.maximum(cv_pred[chosen][i], 1e-12) / T)
-        st = float(plane_structure(lr[None], plane_indicators(dirs))[0])
-        rem = cal.remainder(j, float(1 - dcv[chosen].mean()), st)
+        st = float(cal.structure_obs[j])
+        rem = cal.remainder(j, float(cal.gap_obs[j]), st)
         unexplained = rem["p_structure"] <= ca.alpha or (np.isfinite(rem["p_gap"]) and rem["p_gap"] <= ca.alpha)
         pl_ch = _plane_table(dirs, f_ch_full / T - 1, rcv[chosen], dcv[chosen])
         where = ", ".join(f"{r.plane} (held-out mean residual {r.mean_residual_cv:+.2f})" for r in

@@ -39,7 +39,7 @@ class CalibrationSettings:
     the way from neutral to the far bound) at which the power is simulated, ``power_replicates`` data sets per
     effect and size, ``power_target`` the share identified that counts as detectable. ``strength_spread``: SD of
     individual log strengths, for the strengths the directions leave undetermined in the simulated truths.
-    Simulated data sets are fitted exactly as the measured ones."""
+    ``starts`` / ``max_iter``: fits of the screen (the measured data set and its simulated ones alike)."""
 
     replicates: int = 39
     alpha: float = 0.05
@@ -48,6 +48,8 @@ class CalibrationSettings:
     power_replicates: int = 5
     power_target: float = 0.8
     strength_spread: float = 0.3
+    starts: int = 1
+    max_iter: int = 15
     sd_floor: float = 1e-3
 
 
