@@ -39,6 +39,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
+from neckstrength.gap.calibrate import calibrate, power_summary
 from neckstrength.gap.effects import Effect, GapContext, available_effects, effect_label
 from neckstrength.gap.engine import (  # noqa: F401  (BlindData, DiagnosisSettings, direction_folds: public here too)
     BlindData,
@@ -343,8 +344,6 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
     cal = None
     single_cands = ["none"] + [e.name for e in effects]
     if s.calibration.replicates > 0:
-        from neckstrength.gap.calibrate import calibrate
-
         pf = [int(np.nonzero((eng.pds == i) & (eng.pfold < 0))[0][0]) for i in range(eng.nd)]
         Tm = eng.T[pf]
         rms = np.column_stack([np.sqrt(np.mean(np.log(np.maximum(np.array(cv_pred[c]), 1e-12) / Tm) ** 2, axis=1))
@@ -540,8 +539,6 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
                          "best_score_note": named_note, "alpha": ca.alpha if cal is not None else np.nan}
     pw, pws = pd.DataFrame(), pd.DataFrame()
     if cal is not None:
-        from neckstrength.gap.calibrate import power_summary
-
         j = singles.index(chosen)
         st = float(cal.structure_obs[j])
         rem = cal.remainder(j, float(cal.gap_obs[j]), st)
