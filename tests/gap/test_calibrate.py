@@ -128,3 +128,22 @@ def test_accuracy_table_splits_by_detectability():
     assert t.loc["controls (no effect): correct = none", "share_correct"] == 0.5
     assert t.loc["effect cases, detectable by the case's power analysis", "share_correct"] == 0.5
     assert t.loc["effect cases, not detectable by the power analysis", "cases"] == 1
+
+
+def test_benchmark_generator_tiers_noise_range_and_sizes(ctx_p2):
+    from neckstrength.gap.benchmark import BenchmarkSettings, generate_cases
+
+    bs = BenchmarkSettings(effects=("cocontraction", "kinematic"), replicates=1, controls=1, mismatch_replicates=1,
+                           noise_rel=(0.03, 0.08), clear_size=(0.2, 1.0))
+    cases = generate_cases(ctx_p2, bs, np.random.default_rng(3))
+    assert sorted((c.label, c.tier) for c in cases) == [("cocontraction", "base"), ("cocontraction", "mismatch"),
+                                                        ("kinematic", "base"), ("kinematic", "mismatch"),
+                                                        ("none", "base")]
+    for c in cases:
+        assert 0.03 <= c.noise <= 0.08
+        assert (c.size_share == 0.0) if c.label == "none" else (0.2 <= c.size_share <= 1.0)
+        # the mismatch tier's truth has finer control too: its clean forces differ from the injected effect alone
+        e = EFFECTS[c.injected[0]](ctx_p2) if c.injected else None
+        inst = base_instance(ctx_p2) if e is None else compose(ctx_p2, [e], [c.theta[e.name]])
+        alone = Simulator(ctx_p2, inst).forces(c.f_true[None])[0]
+        assert np.allclose(alone, c.forces_clean) == (c.tier == "base")

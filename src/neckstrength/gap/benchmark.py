@@ -95,7 +95,7 @@ def generate_cases(ctx: GapContext, s: BenchmarkSettings, rng: np.random.Generat
             raise ValueError(f"mismatch effect {s.mismatch_effect} not applicable to {ctx.model.name}")
         effects[mm[0].name] = mm[0]
         for n in s.effects:
-            if n != mm.name:
+            if n != mm[0].name:
                 plan += [((n,), "mismatch")] * s.mismatch_replicates
     cache = make_cache()
     base_sim = Simulator(ctx, compose(ctx, [], []), cache)
