@@ -213,6 +213,7 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
         phis[i] = truth_strengths(sim_base, phi_fit[i], T[i], sig[i][0], cs.strength_spread, R + n_pow,
                                   derive_rng(s.seed, f"gap/truth/{n}"))
         f_null = sim_base.forces(sim_base.muscles(phis[i][:R])) if R else np.zeros((0, K))
+        f_null = np.maximum(f_null, 1e-3 * np.median(f_fit[i]))       # a direction the draw cannot produce
         z = derive_rng(s.seed, f"gap/null/{n}").normal(0.0, 1.0, (R, K))
         for r in range(R):
             sims.append(BlindData(f"{n}/null{r}", f_null[r] * np.exp(sig[i][0] * z[r])))
