@@ -132,8 +132,9 @@ def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
     summ = {"model": model_name, "cases": len(cases), "accuracy": acc, "overlap_rate": float(pc["overlap"].mean()),
             "chance_single": 1.0 / n_cand, "mean_shrink_share": float(pc["shrink_share"].mean()),
             "mean_abs_effect_size_error_share": float(tabs["effect_size"]["error_share_of_range"].abs().mean())
-            if len(tabs["effect_size"]) else None, "false_alarm_rate": false_alarm, "controls": len(ctrl),
-            "accuracy_detectable": acc_det, "detectable_cases": len(det),
+            if len(tabs["effect_size"]) else None,
+            "false_alarm_rate": false_alarm if len(ctrl) else None, "controls": len(ctrl),
+            "accuracy_detectable": acc_det if len(det) else None, "detectable_cases": len(det),
             "goal_accuracy_detectable": 0.8, "goal_false_alarm": 0.1,
             "goals_met": bool(len(det) and len(ctrl) and acc_det >= 0.8 and false_alarm <= 0.1),
             "seconds": time.time() - t0}
