@@ -24,11 +24,13 @@ import time
 from dataclasses import replace
 
 
-def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: bool) -> dict:
+def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: bool, effects=None) -> dict:
     from neckstrength.config import build_directions, diagnosis_settings, gap_blind_dataset, gap_context, load_config
     from neckstrength.gap.diagnose import diagnose
 
     cfg = load_config(cfg_path)
+    if effects:
+        cfg["gap"]["effects"] = list(effects)
     directions = build_directions(cfg)
     ctx = gap_context(cfg, model, directions)
     data = gap_blind_dataset(cfg, ctx, directions, dataset)
@@ -68,9 +70,11 @@ def main() -> None:
     ap.add_argument("--dataset", default="S003")
     ap.add_argument("--reference", action="store_true", help="also time finite-difference Jacobians")
     ap.add_argument("--no-calibration", action="store_true")
+    ap.add_argument("--effects", default=None, help="comma-separated effects (default: config gap.effects)")
     ap.add_argument("--out", default=None, help="JSON file for the timings")
     a = ap.parse_args()
-    res = run(a.config, a.model, a.dataset, a.reference, not a.no_calibration)
+    res = run(a.config, a.model, a.dataset, a.reference, not a.no_calibration,
+              a.effects.split(",") if a.effects else None)
     if a.out:
         with open(a.out, "w") as fh:
             json.dump(res, fh, indent=2)
