@@ -25,6 +25,7 @@ from neckstrength.estimation.datasets import build_dataset, model_directions_tab
 from neckstrength.gap.benchmark import BenchmarkSettings
 from neckstrength.gap.diagnose import BlindData, DiagnosisSettings
 from neckstrength.gap.effects import GapContext
+from neckstrength.gap.engine import CalibrationSettings
 from neckstrength.gap.fit import FitSettings
 from neckstrength.io import read_activations
 from neckstrength.model.full import FullModel, load_full_model
@@ -198,14 +199,34 @@ def diagnosis_settings(config: Mapping, effects: Sequence[str] | None = None) ->
                              pairs_top=g["pairs_top"], pair_grid_top=g["pair_grid_top"], penalty=g["penalty"],
                              epsilon=config["chapter5"]["epsilon"], bootstrap=g["bootstrap"], starts=g["starts"],
                              start_spread=g["start_spread"], refine_iter=g["refine_iter"],
-                             reach_samples=g["reach_samples"], reach_iter=g["reach_iter"], seed=config["seed"], fit=fit)
+                             refine_starts=g.get("refine_starts", 1),
+                             reach_samples=g["reach_samples"], reach_iter=g["reach_iter"], seed=config["seed"], fit=fit,
+                             calibration=calibration_settings(config))
+
+
+def calibration_settings(config: Mapping) -> CalibrationSettings:
+    """``gap.calibration`` (absent: no calibration, the uncalibrated score ranking)."""
+    c = dict(config["gap"].get("calibration") or {})
+    if not c:
+        return CalibrationSettings(replicates=0)
+    noise = c.get("noise", "heldout")
+    return CalibrationSettings(replicates=int(c.get("replicates", 39)), alpha=float(c.get("alpha", 0.05)),
+                               noise=noise if isinstance(noise, str) else float(noise),
+                               power_sizes=tuple(float(u) for u in c.get("power_sizes", (0.25, 0.5, 1.0))),
+                               power_replicates=int(c.get("power_replicates", 5)),
+                               power_target=float(c.get("power_target", 0.8)),
+                               strength_spread=float(c.get("strength_spread", 0.3)),
+                               starts=int(c.get("starts", 1)), max_iter=int(c.get("max_iter", 15)))
 
 
 def benchmark_settings(config: Mapping) -> BenchmarkSettings:
     b = config["gap"]["benchmark"]
+    nz = b["noise_rel"]
     return BenchmarkSettings(effects=tuple(b["effects"]), pairs=tuple(tuple(p) for p in b.get("pairs", [])),
-                             replicates=b["replicates"], controls=b["controls"], noise_rel=b["noise_rel"],
-                             strength_spread=b["strength_spread"], clear_size=tuple(b["clear_size"]))
+                             replicates=b["replicates"], controls=b["controls"],
+                             noise_rel=tuple(float(x) for x in nz) if isinstance(nz, (list, tuple)) else float(nz),
+                             strength_spread=b["strength_spread"], clear_size=tuple(b["clear_size"]),
+                             mismatch_replicates=int(b.get("mismatch_replicates", 0)))
 
 
 def chapter6_settings(config: Mapping, model_name: str | None = None, **over) -> SequentialSettings:
@@ -298,6 +319,13 @@ def gap_settings_text(config: Mapping, s: DiagnosisSettings) -> str:
                       f"(spread {s.start_spread} in log strength); pairs of the best {s.pairs_top} effects on the "
                       f"best {s.pair_grid_top} grid points of each",
                       f"- fit: {json.dumps(plain(g['fit']))}; penalty {s.penalty} per extra parameter; bootstrap {s.bootstrap}",
-                      f"- effect-parameter refinement iterations (all-direction fit): {s.refine_iter}",
+                      f"- effect-parameter refinement iterations (all-direction fit): {s.refine_iter} "
+                      f"({s.refine_starts} start(s) per trial)",
                       f"- reach envelope: {s.reach_samples} samples, {s.reach_iter} gradient iterations",
+                      f"- calibration: {s.calibration.replicates} noise-only replicates (p resolution "
+                      f"{1 / (s.calibration.replicates + 1):.3g}), alpha {s.calibration.alpha}, noise "
+                      f"{s.calibration.noise}; power at sizes {list(s.calibration.power_sizes)} with "
+                      f"{s.calibration.power_replicates} replicates each (target {s.calibration.power_target}); "
+                      f"screen (measured and simulated data alike): {s.calibration.starts} start(s), max_iter "
+                      f"{s.calibration.max_iter}",
                       f"- seed {config['seed']}"])

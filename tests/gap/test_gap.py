@@ -187,3 +187,27 @@ def test_same_answer_alone_in_a_batch_and_in_any_order(ctx_p2):
     assert any(not np.array_equal(folds[0], f) for f in folds[1:])
     with pytest.raises(ValueError, match="unique"):
         dg.diagnose(ctx_p2, [data[0], data[0]], s)
+
+
+@pytest.mark.parametrize("effect", [None, "cocontraction", "direction_tolerance", "kinematic", "shoulder_girdle"])
+def test_exact_gradient_matches_finite_differences(effect, ctx_s3):
+    # envelope theorem on the LP (fit.Simulator.forces_grad_phi) vs forward differences of the exact solver
+    ctx = ctx_s3
+    inst = base_instance(ctx)
+    if effect is not None:
+        e = EFFECTS[effect](ctx)
+        th = e.neutral + 0.6 * np.where(e.upper - e.neutral > e.neutral - e.lower, e.upper - e.neutral,
+                                        e.lower - e.neutral)
+        inst = compose(ctx, [e], [th])
+    sim = Simulator(ctx, inst)
+    p = int(sim.pidx.max()) + 1
+    phi = start_point(sim, sim.forces(ctx.model.strengths[None]), np.ones((1, ctx.K))) \
+        + np.random.default_rng(2).normal(0, 0.3, (2, p))
+    if inst.J > 1:
+        sim.refresh(sim.muscles(phi))
+    f, g = sim.forces_grad_phi(phi)
+    assert np.allclose(f, sim.forces_phi(phi), rtol=1e-10, atol=1e-9)
+    h = 1e-6
+    fd = np.stack([(sim.forces_phi(phi + h * np.eye(p)[q]) - f) / h for q in range(p)], axis=2)
+    assert np.abs(g).max() > 1.0                                   # not trivially zero
+    assert np.allclose(g, fd, rtol=1e-4, atol=1e-4 * f.max())

@@ -2,6 +2,10 @@
 # withheld and compared afterwards), a pooled table over the data sets, and the withheld-effect benchmark.
 
 
+# results/gap/{model}/benchmark/summary.json is the benchmark's, not a data set named 'benchmark'
+ruleorder: gap_benchmark > gap_diagnose
+
+
 rule gap_diagnose:
     input:
         MODEL_TABLES,
@@ -16,6 +20,7 @@ rule gap_diagnose:
         effects="results/gap/{model}/{dataset}/effects.csv",
         strengths="results/gap/{model}/{dataset}/strengths.csv",
         activation_check="results/gap/{model}/{dataset}/activation_check.csv",
+        power="results/gap/{model}/{dataset}/power.csv",
         summary="results/gap/{model}/{dataset}/summary.json",
         report="results/gap/{model}/{dataset}/report.md",
         fig_radar=report(
@@ -47,10 +52,11 @@ rule gap_diagnose:
             labels={"model": "{model}", "dataset": "{dataset}", "figure": "Table A.3 check"},
         ),
     params:
-        settings=settings("chapter5", "data", "gap.bootstrap", "gap.effect_settings", "gap.effects", "gap.fit",
-            "gap.folds", "gap.grid_points", "gap.measurements", "gap.pair_grid_top", "gap.pairs_top",
-            "gap.penalty", "gap.reach_iter", "gap.reach_samples", "gap.refine_iter", "gap.shoulder_muscles",
-            "gap.start_spread", "gap.starts", "gap.tie_sides", "geometry.head.centre", "model", "seed"),
+        settings=settings("chapter5", "data", "gap.bootstrap", "gap.calibration", "gap.effect_settings",
+            "gap.effects", "gap.fit", "gap.folds", "gap.grid_points", "gap.measurements", "gap.pair_grid_top",
+            "gap.pairs_top", "gap.penalty", "gap.reach_iter", "gap.reach_samples", "gap.refine_iter", "gap.refine_starts",
+            "gap.shoulder_muscles", "gap.start_spread", "gap.starts", "gap.tie_sides", "geometry.head.centre",
+            "model", "seed"),
     log:
         "logs/gap/{model}/{dataset}/diagnose.log",
     threads: 1
@@ -115,19 +121,29 @@ rule gap_benchmark:
             subcategory="{model}: withheld-effect benchmark",
             labels={"model": "{model}", "table": "per case"},
         ),
+        accuracy=report(
+            "results/gap/{model}/benchmark/accuracy.csv",
+            caption="../report/gap_benchmark_accuracy.rst",
+            category="Gap diagnosis",
+            subcategory="{model}: withheld-effect benchmark",
+            labels={"model": "{model}", "table": "accuracy by detectability"},
+        ),
         effect_size="results/gap/{model}/benchmark/effect_size.csv",
         report="results/gap/{model}/benchmark/benchmark.md",
         summary="results/gap/{model}/benchmark/summary.json",
     params:
         settings=settings("chapter5.emg_groups.{model}", "chapter5.epsilon", "chapter5.settings.{model}",
-            "data.model_dir", "data.thesis_dir", "gap.benchmark.bootstrap", "gap.benchmark.clear_size",
-            "gap.benchmark.controls", "gap.benchmark.diagnosis_effects", "gap.benchmark.effects",
-            "gap.benchmark.folds", "gap.benchmark.noise_rel", "gap.benchmark.pairs",
-            "gap.benchmark.replicates", "gap.benchmark.starts", "gap.benchmark.strength_spread",
-            "gap.bootstrap", "gap.effect_settings", "gap.effects", "gap.fit", "gap.folds", "gap.grid_points",
+            "data.model_dir", "data.thesis_dir", "gap.benchmark.bootstrap", "gap.benchmark.calibration",
+            "gap.benchmark.chunk", "gap.benchmark.clear_size", "gap.benchmark.controls",
+            "gap.benchmark.diagnosis_effects", "gap.benchmark.effects", "gap.benchmark.folds",
+            "gap.benchmark.mismatch_replicates", "gap.benchmark.noise_rel", "gap.benchmark.pairs",
+            "gap.benchmark.pairs_top", "gap.benchmark.refine_iter", "gap.benchmark.replicates",
+            "gap.benchmark.starts", "gap.benchmark.strength_spread",
+            "gap.bootstrap", "gap.calibration", "gap.effect_settings", "gap.effects", "gap.fit", "gap.folds",
+            "gap.grid_points",
             "gap.pair_grid_top", "gap.pairs_top", "gap.penalty", "gap.reach_iter", "gap.reach_samples",
-            "gap.refine_iter", "gap.shoulder_muscles", "gap.start_spread", "gap.starts", "gap.tie_sides",
-            "geometry.head.centre", "model", "seed"),
+            "gap.refine_iter", "gap.refine_starts", "gap.shoulder_muscles", "gap.start_spread", "gap.starts",
+            "gap.tie_sides", "geometry.head.centre", "model", "seed"),
     log:
         "logs/gap/{model}/benchmark.log",
     threads: 1

@@ -6,9 +6,13 @@ Modules, each importing downward only:
 - :mod:`.effects`    candidate unmodelled effects (a registry: one class per effect) and the model
                      :class:`~.effects.Instance` they modify (moment arms, strengths, bounds, directions)
 - :mod:`.fit`        free strengths (+ fixed effect parameters) fitted to measured forces: a Levenberg-Marquardt
-                     least-squares fit vectorised over many problems; every evaluation is one batch of exact LPs
+                     least-squares fit vectorised over many problems, with the exact Jacobian of the LP
+- :mod:`.engine`     fits of every (effect, parameter) key for many problems (folds x data sets), cached by key
+- :mod:`.calibrate`  the calibrated decision (issue 17): noise-only null per data set, maxT p-value, remainder
+                     test, power per effect
 - :mod:`.diagnose`   where (residuals by direction, plane, wrench component, active muscle; reach envelope),
-                     which (cross-validation over held-out directions, penalty, bootstrap ranking) and how far
+                     which (cross-validation over held-out directions, calibrated decision, ranking) and how far
+- :mod:`.store`      per-data-set results on disk, keyed by everything they depend on (resume)
 - :mod:`.benchmark`  withheld-effect generator and blind scoring (kept apart from the diagnosis)
 - :mod:`.report`     per-data-set markdown report and figures
 """

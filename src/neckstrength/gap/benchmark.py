@@ -32,11 +32,13 @@ class BenchmarkSettings:
     pairs: tuple[tuple[str, str], ...] = ()
     replicates: int = 2
     controls: int = 2
-    noise_rel: float = 0.05
+    noise_rel: float | tuple[float, float] = 0.05     # one value, or a range drawn per case (uniform)
     strength_spread: float = 0.3
     clear_size: tuple[float, float] = (0.6, 1.0)
     min_force_ratio: float = 0.2
     max_tries: int = 200
+    mismatch_replicates: int = 0                      # per effect: cases whose truth also has finer_groups at 1
+    mismatch_effect: str = "finer_groups"
 
 
 @dataclass
@@ -49,6 +51,9 @@ class Case:
     f_true: np.ndarray
     forces_clean: np.ndarray
     forces: np.ndarray
+    tier: str = "base"                 # 'base' or 'mismatch' (truth: finer muscle control in addition)
+    noise: float = 0.0
+    size_share: float = 0.0            # injected size: share of the way from neutral to the far bound
 
     @property
     def label(self) -> str:
@@ -79,29 +84,45 @@ def generate_cases(ctx: GapContext, s: BenchmarkSettings, rng: np.random.Generat
     missing = [n for n in list(s.effects) + [n for pr in s.pairs for n in pr] if n not in effects]
     if missing:
         raise ValueError(f"benchmark effects not applicable to model {ctx.model.name}: {missing}")
-    plan: list[tuple[str, ...]] = [()] * s.controls
+    plan: list[tuple[tuple[str, ...], str]] = [((), "base")] * s.controls
     for n in s.effects:
-        plan += [(n,)] * s.replicates
+        plan += [((n,), "base")] * s.replicates
     for pr in s.pairs:
-        plan += [tuple(pr)] * s.replicates
+        plan += [(tuple(pr), "base")] * s.replicates
+    if s.mismatch_replicates:
+        mm = available_effects(ctx, [s.mismatch_effect])
+        if not mm:
+            raise ValueError(f"mismatch effect {s.mismatch_effect} not applicable to {ctx.model.name}")
+        effects[mm[0].name] = mm[0]
+        for n in s.effects:
+            if n != mm[0].name:
+                plan += [((n,), "mismatch")] * s.mismatch_replicates
     cache = make_cache()
     base_sim = Simulator(ctx, compose(ctx, [], []), cache)
     pidx = base_sim.pidx
     p = int(pidx.max()) + 1
     cases = []
-    for names in plan:
+    for names, tier in plan:
         for _ in range(s.max_tries):
             f = ctx.model.strengths * np.exp(rng.normal(0.0, s.strength_spread, p))[pidx]
-            theta = {n: _draw_theta(effects[n], rng.uniform(*s.clear_size, effects[n].n_params), rng) for n in names}
-            inst = compose(ctx, [effects[n] for n in names], [theta[n] for n in names])
+            us = {n: rng.uniform(*s.clear_size, effects[n].n_params) for n in names}
+            theta = {n: _draw_theta(effects[n], us[n], rng) for n in names}
+            extra = {}
+            if tier == "mismatch":
+                extra = {s.mismatch_effect: _draw_theta(effects[s.mismatch_effect],
+                                                        np.ones(effects[s.mismatch_effect].n_params), rng)}
+            allth = {**theta, **extra}
+            inst = compose(ctx, [effects[n] for n in allth], [allth[n] for n in allth])
             clean = Simulator(ctx, inst, cache).forces(f[None])[0]
             typical = np.median(base_sim.forces(f[None])[0])
             if clean.min() >= s.min_force_ratio * typical:
                 break
         else:
             raise RuntimeError(f"could not draw a producible case for {names}")
-        noisy = clean * np.exp(rng.normal(0.0, s.noise_rel, len(clean)))
-        cases.append(Case("", tuple(names), theta, f, clean, noisy))
+        nz = (float(rng.uniform(*s.noise_rel)) if isinstance(s.noise_rel, (tuple, list)) else float(s.noise_rel))
+        noisy = clean * np.exp(rng.normal(0.0, nz, len(clean)))
+        share = max((float(np.max(us[n])) for n in names), default=0.0)
+        cases.append(Case("", tuple(names), theta, f, clean, noisy, tier, nz, share))
     order = rng.permutation(len(cases))
     cases = [cases[k] for k in order]
     for k, c in enumerate(cases):
@@ -136,7 +157,13 @@ def score_benchmark(ctx: GapContext, cases: Sequence[Case], diags: Sequence[Data
         gap_inj = float(tab.loc[c.label, "gap_cv"]) if c.label in tab.index else np.nan
         floor = float(1 - data_discrepancy(c.forces_clean, c.forces, epsilon).mean())
         possible = gap_base - floor
-        rows.append({"case": c.name, "injected": c.label,
+        pws = d.power_summary
+        min_share = (float(pws.set_index("effect").loc[c.label, "min_detectable_share"])
+                     if len(pws) and c.label in set(pws["effect"]) else np.nan)
+        rows.append({"case": c.name, "injected": c.label, "tier": c.tier, "noise": c.noise,
+                     "size_share": c.size_share, "min_detectable_share": min_share,
+                     "detectable": bool(np.isfinite(min_share) and c.size_share >= min_share),
+                     "p_value": d.summary.get("p_value", np.nan),
                      "theta_true": "; ".join(f"{n}: {EFFECTS[n](ctx).describe(th)}" for n, th in c.theta.items()) or "-",
                      "identified": ident, "p_best": d.summary["p_best_chosen"],
                      "correct": ident == c.label,
@@ -161,14 +188,40 @@ def score_benchmark(ctx: GapContext, cases: Sequence[Case], diags: Sequence[Data
     conf.index.name = "injected \\ identified"
     conf.columns.name = None
     conf = conf.reset_index()
-    return {"per_case": per_case, "confusion": conf, "effect_size": pd.DataFrame(size_rows)}
+    return {"per_case": per_case, "confusion": conf, "effect_size": pd.DataFrame(size_rows),
+            "accuracy": accuracy_table(per_case)}
+
+
+def accuracy_table(pc: pd.DataFrame) -> pd.DataFrame:
+    """Share correct by group: controls (false alarms), effect cases by detectability (item 3's power) and by
+    injected size, per tier."""
+    rows = []
+
+    def add(group, sel):
+        g = pc[sel]
+        rows.append({"group": group, "cases": len(g), "correct": int(g["correct"].sum()) if len(g) else 0,
+                     "share_correct": float(g["correct"].mean()) if len(g) else np.nan,
+                     "named_any_effect": int((g["identified"] != "none").sum()) if len(g) else 0})
+
+    ctrl = pc["injected"] == "none"
+    add("controls (no effect): correct = none", ctrl)
+    eff = ~ctrl
+    add("effect cases, detectable by the case's power analysis", eff & pc["detectable"])
+    add("effect cases, not detectable by the power analysis", eff & ~pc["detectable"])
+    for tier in sorted(set(pc["tier"])):
+        add(f"effect cases, tier {tier}, detectable", eff & pc["detectable"] & (pc["tier"] == tier))
+    for lo, hi in ((0.0, 0.4), (0.4, 0.7), (0.7, 1.01)):
+        add(f"effect cases, injected size {lo:g}-{min(hi, 1):g} of the range", eff & (pc["size_share"] >= lo)
+            & (pc["size_share"] < hi))
+    return pd.DataFrame(rows)
 
 
 def run_benchmark(ctx: GapContext, bs: BenchmarkSettings, ds: DiagnosisSettings, rng: np.random.Generator,
-                  progress=None):
-    """Generate, diagnose blind, score. Returns (cases, diagnoses, score tables)."""
+                  progress=None, store=None, chunk: int | None = None):
+    """Generate, diagnose blind (``store``/``chunk``: see :func:`neckstrength.gap.diagnose.diagnose`), score.
+    Returns (cases, diagnoses, score tables)."""
     cases = generate_cases(ctx, bs, rng)
     if progress:
         progress(f"benchmark: {len(cases)} cases generated (labels withheld from the diagnosis)")
-    diags = diagnose(ctx, blind(cases), ds, progress)
+    diags = diagnose(ctx, blind(cases), ds, progress, store=store, chunk=chunk)
     return cases, diags, score_benchmark(ctx, cases, diags, ds.epsilon)

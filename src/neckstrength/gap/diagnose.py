@@ -39,39 +39,22 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from neckstrength.estimation.discrepancy import data_discrepancy
-from neckstrength.gap.effects import Effect, GapContext, available_effects, base_instance, compose, effect_label
-from neckstrength.gap.fit import FitSettings, Simulator, fit_strengths, make_cache, start_point
+from neckstrength.gap.calibrate import calibrate, power_summary
+from neckstrength.gap.effects import Effect, GapContext, available_effects, effect_label
+from neckstrength.gap.engine import (  # noqa: F401  (BlindData, DiagnosisSettings, direction_folds: public here too)
+    BlindData,
+    DiagnosisSettings,
+    _cv_predictions,
+    _d,
+    _Engine,
+    _selection,
+    cv_predictions,
+    direction_folds,
+    single_effect_grids,
+)
+from neckstrength.gap.fit import Simulator
 from neckstrength.model.geometry import PLANE_GRID, WRENCH_COMPONENTS
 from neckstrength.seeds import derive_rng
-
-
-@dataclass(frozen=True)
-class BlindData:
-    """What the diagnosis is given: a name and the measured maximum force (N) per test direction."""
-
-    name: str
-    forces: np.ndarray
-
-
-@dataclass(frozen=True)
-class DiagnosisSettings:
-    effects: tuple[str, ...] = ("cocontraction", "cocontraction_groups", "direction_tolerance", "kinematic",
-                                "asymmetry", "finer_groups", "origin_offset", "point_scale", "shoulder_girdle")
-    grid_points: int = 5
-    folds: int = 5
-    pairs_top: int = 3
-    pair_grid_top: int = 1
-    penalty: float = 0.005
-    epsilon: float = 3.0
-    bootstrap: int = 500
-    starts: int = 4
-    start_spread: float = 0.5
-    refine_iter: int = 0
-    reach_samples: int = 1500
-    reach_iter: int = 8
-    seed: int = 0
-    fit: FitSettings = FitSettings()
 
 
 @dataclass
@@ -85,153 +68,25 @@ class DatasetDiagnosis:
     strengths: pd.DataFrame      # fitted strengths (all directions) of base and chosen candidate
     summary: dict = field(default_factory=dict)
     activations: dict = field(default_factory=dict)   # candidate -> (K x m) model-muscle activations (full fit)
+    power: pd.DataFrame = field(default_factory=pd.DataFrame)          # per effect and size (calibration)
+    power_summary: pd.DataFrame = field(default_factory=pd.DataFrame)  # per effect: smallest detectable size
 
 
-def direction_folds(K: int, folds: int, rng: np.random.Generator) -> np.ndarray:
-    """Fold of each direction: a random permutation dealt round-robin (leave-one-out when folds >= K)."""
-    folds = min(int(folds), K)
-    return rng.permutation(K) % folds
 
+def _refine(engine: _Engine, effs: list[Effect], start: list[tuple], iters: int, datasets: set[int],
+            starts: int = 1) -> list[tuple]:
+    """Local pattern search on the effect parameters of the all-direction problems of ``datasets``.
 
-def _key(pairs: Sequence[tuple[str, np.ndarray]], registry: dict | None = None) -> tuple:
-    """Canonical key of an effect combination: sorted by name, neutral effects dropped (same model)."""
-    out = []
-    for n, th in pairs:
-        th = tuple(float(x) for x in np.asarray(th, float))
-        if registry is not None and registry[n].is_neutral(np.array(th)):
-            continue
-        out.append((n, th))
-    return tuple(sorted(out))
-
-
-class _Engine:
-    """Fits of every (effect combination, parameter) key for all problems; results cached by key."""
-
-    def __init__(self, ctx: GapContext, data: Sequence[BlindData], s: DiagnosisSettings, folds: np.ndarray,
-                 registry: dict[str, Effect]):
-        self.ctx, self.s, self.folds, self.registry = ctx, s, folds, registry
-        self.cache = make_cache()
-        self.F = int(folds.max()) + 1          # folds: (data sets x directions)
-        self.nd = len(data)
-        K = ctx.K
-        T, W, ds, fo = [], [], [], []
-        for i, d in enumerate(data):
-            f = np.asarray(d.forces, float)
-            if f.shape != (K,) or not np.all(np.isfinite(f)) or np.any(f <= 0):
-                raise ValueError(f"data set {d.name}: need {K} positive finite forces")
-            for fold in list(range(self.F)) + [-1]:
-                T.append(f)
-                W.append((folds[i] != fold).astype(float) if fold >= 0 else np.ones(K))
-                ds.append(i)
-                fo.append(fold)
-        self.T, self.W = np.array(T), np.array(W)
-        self.pds, self.pfold = np.array(ds), np.array(fo)
-        self.P = len(self.T)
-        self.base_sim = Simulator(ctx, base_instance(ctx), self.cache, s.fit.chunk_size)
-        self.max_rounds = 4
-        self.prior = start_point(self.base_sim, self.T, self.W)
-        self.p = self.prior.shape[1]
-        self.results: dict[tuple, dict] = {}
-        self.n_fits = 0
-
-    def key(self, pairs) -> tuple:
-        return _key(pairs, self.registry)
-
-    def effects_of(self, key: tuple) -> tuple[list[Effect], list[np.ndarray]]:
-        effs = [self.registry[n] for n, _ in key]
-        return effs, [np.array(th) for _, th in key]
-
-    def sim(self, key: tuple) -> Simulator:
-        """A simulator for ``key`` (the base one is kept; others are built per use and dropped, with
-        their basis caches)."""
-        if key == ():
-            return self.base_sim
-        effs, ths = self.effects_of(key)
-        return Simulator(self.ctx, compose(self.ctx, effs, ths), None, self.s.fit.chunk_size)
-
-    def evaluate(self, key: tuple, warm: np.ndarray, mask: np.ndarray | None = None) -> dict:
-        """Fit the problems in ``mask`` for ``key`` with ``starts`` starts (warm start + perturbations)."""
-        mask = np.ones(self.P, bool) if mask is None else mask
-        old = self.results.get(key)
-        if old is not None:
-            mask = mask & ~old["done"]
-        idx = np.nonzero(mask)[0]
-        if old is None:
-            old = {"phi": np.full((self.P, self.p), np.nan), "loss": np.full(self.P, np.inf),
-                   "sse": np.full(self.P, np.inf), "forces": np.full((self.P, self.ctx.K), np.nan),
-                   "done": np.zeros(self.P, bool)}
-            self.results[key] = old
-        if len(idx) == 0:
-            return old
-        S = max(1, int(self.s.starts))
-        rng = derive_rng(self.s.seed, repr(key))
-        phi0 = np.repeat(warm[idx], S, axis=0)
-        pert = rng.normal(0.0, self.s.start_spread, phi0.shape)
-        pert[::S] = 0.0
-        phi0 = phi0 + pert
-        rep = lambda a: np.repeat(a[idx], S, axis=0)  # noqa: E731
-        sim = self.sim(key)
-        sim.refresh(sim.muscles(phi0))       # candidate wrenches that are maximal at the start points
-        res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), phi0, rep(self.prior), self.s.fit)
-        for _ in range(self.max_rounds):     # active set of candidate wrenches (direction_tolerance)
-            if not sim.refresh(sim.muscles(res.phi)):
-                break
-            res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), res.phi, rep(self.prior), self.s.fit)
-        if sim.inst.J > 1:
-            res.forces = sim.run(sim.muscles(res.phi))[0]
-            res.loss, res.sse = _train_loss(res.forces, rep(self.T), rep(self.W), res.phi, rep(self.prior),
-                                            self.s.fit.ridge)
-        self.n_fits += len(phi0)
-        loss = res.loss.reshape(len(idx), S)
-        best = loss.argmin(axis=1)
-        pick = np.arange(len(idx)) * S + best
-        old["phi"][idx] = res.phi[pick]
-        old["loss"][idx] = res.loss[pick]
-        old["sse"][idx] = res.sse[pick]
-        old["forces"][idx] = res.forces[pick]
-        old["done"][idx] = True
-        return old
-
-
-def _train_loss(F, T, W, phi, prior, ridge):
-    sse = (W * (F / T - 1.0) ** 2).sum(axis=1)
-    return sse + ridge * ((phi - prior) ** 2).sum(axis=1), sse
-
-
-def _d(forces: np.ndarray, T: np.ndarray, eps: float) -> np.ndarray:
-    return data_discrepancy(forces, T, eps)
-
-
-def _selection(engine: _Engine, keys_per_problem: list[list[tuple]]) -> list[tuple]:
-    """Per problem, the key with the lowest training loss among its candidate keys."""
-    out = []
-    for p, keys in enumerate(keys_per_problem):
-        losses = [engine.results[k]["loss"][p] if k in engine.results else np.inf for k in keys]
-        out.append(keys[int(np.argmin(losses))])
-    return out
-
-
-def _cv_predictions(engine: _Engine, chosen: list[tuple], i: int) -> np.ndarray:
-    """Held-out prediction of every direction of data set ``i`` from its fold's chosen key."""
-    K = engine.ctx.K
-    pred = np.full(K, np.nan)
-    for p in np.nonzero(engine.pds == i)[0]:
-        f = engine.pfold[p]
-        if f < 0:
-            continue
-        sel = engine.folds[i] == f
-        pred[sel] = engine.results[chosen[p]]["forces"][p, sel]
-    return pred
-
-
-def _refine(engine: _Engine, effs: list[Effect], start: list[tuple], iters: int, datasets: set[int]) -> list[tuple]:
-    """Local pattern search on the effect parameters of the all-direction problems of ``datasets``."""
-    full_p = [p for p in np.nonzero(engine.pfold < 0)[0] if engine.pds[p] in datasets]
+    Each iteration tries, for every problem at once, a step of its current size along every parameter axis in
+    both directions; the trial keys of all problems are fitted together (one fit per key for the problems that
+    try it, warm-started from each problem's current fit, ``starts`` starts). A problem moves to its best trial
+    if that lowers its training loss, else halves its steps."""
+    full_p = [int(p) for p in np.nonzero(engine.pfold < 0)[0] if engine.pds[p] in datasets]
     cur = list(start)
     lower = np.concatenate([e.lower for e in effs])
     upper = np.concatenate([e.upper for e in effs])
-    step = (upper - lower) / max(2 * (engine.s.grid_points - 1), 2)
-    steps = [step.copy() for _ in full_p]
+    step0 = (upper - lower) / max(2 * (engine.s.grid_points - 1), 2)
+    steps = {p: step0.copy() for p in full_p}
     sizes = [len(e.neutral) for e in effs]
 
     def to_key(vec):
@@ -246,31 +101,35 @@ def _refine(engine: _Engine, effs: list[Effect], start: list[tuple], iters: int,
         return np.concatenate([np.array(d.get(e.name, tuple(e.neutral)), float) for e in effs])
 
     for _ in range(iters):
-        moved = False
-        for a, p in enumerate(full_p):
-            if np.all(steps[a] < 1e-3 * (upper - lower)):
-                continue
+        live = [p for p in full_p if not np.all(steps[p] < 1e-3 * (upper - lower))]
+        if not live:
+            break
+        trials: dict[int, list[tuple]] = {}
+        masks: dict[tuple, np.ndarray] = {}
+        warm = np.array(engine.prior, float)
+        for p in live:
             v0 = vec_of(cur[p])
-            best_key, best_loss = cur[p], engine.results[cur[p]]["loss"][p]
+            warm[p] = engine.results[cur[p]]["phi"][p]
             for ax in range(len(v0)):
                 for sgn in (-1.0, 1.0):
                     v = v0.copy()
-                    v[ax] = np.clip(v[ax] + sgn * steps[a][ax], lower[ax], upper[ax])
+                    v[ax] = np.clip(v[ax] + sgn * steps[p][ax], lower[ax], upper[ax])
                     key = to_key(v)
-                    if key == cur[p]:
+                    if key == cur[p] or key in trials.get(p, []):
                         continue
-                    mask = np.zeros(engine.P, bool)
-                    mask[p] = True
-                    r = engine.evaluate(key, engine.results[cur[p]]["phi"], mask)
-                    if r["loss"][p] < best_loss - 1e-12:
-                        best_key, best_loss = key, r["loss"][p]
+                    trials.setdefault(p, []).append(key)
+                    masks.setdefault(key, np.zeros(engine.P, bool))[p] = True
+        for key, mask in masks.items():
+            engine.evaluate(key, warm, mask, starts=starts)
+        for p in live:
+            best_key, best_loss = cur[p], engine.results[cur[p]]["loss"][p]
+            for key in trials.get(p, []):
+                if engine.results[key]["loss"][p] < best_loss - 1e-12:
+                    best_key, best_loss = key, engine.results[key]["loss"][p]
             if best_key != cur[p]:
                 cur[p] = best_key
-                moved = True
             else:
-                steps[a] = steps[a] / 2
-        if not moved and all(np.all(st < 1e-3 * (upper - lower)) for st in steps):
-            break
+                steps[p] = steps[p] / 2
     return cur
 
 
@@ -419,18 +278,40 @@ def _muscle_table(ctx: GapContext, alpha: np.ndarray, r_in, r_cv) -> pd.DataFram
 
 
 def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSettings = DiagnosisSettings(),
-             progress=None) -> list[DatasetDiagnosis]:
+             progress=None, store=None, chunk: int | None = None) -> list[DatasetDiagnosis]:
     """Diagnose each data set in ``data`` (forces only) with the model of ``ctx``; see the module docstring.
 
-    Every random draw of a data set (its fold split, bootstrap, reach samples) derives from ``settings.seed`` and
-    the data set's name, so a data set gets the same answer alone or in a batch, in any order, by any path.
+    Every random draw of a data set (its fold split, start perturbations, bootstrap, reach samples, simulated
+    replicates) derives from ``settings.seed`` and the data set's name, so a data set gets the same answer alone
+    or in a batch, in any order, by any path. ``store`` (:class:`neckstrength.gap.store.ResultStore`): results
+    found there are reused, new ones written as each batch of ``chunk`` data sets (default: all) finishes, so
+    an interrupted run resumes.
     """
-    s = settings
     say = progress or (lambda msg: None)
-    K = ctx.K
     names = [d.name for d in data]
     if len(set(names)) != len(names):
         raise ValueError(f"data set names must be unique: {names}")
+    done = {d.name: store.get(d) for d in data} if store is not None else {d.name: None for d in data}
+    todo = [d for d in data if done[d.name] is None]
+    if store is not None and len(todo) < len(data):
+        say(f"resumed {len(data) - len(todo)} of {len(data)} data set(s) from {store.folder}")
+    n = max(1, int(chunk)) if chunk else max(1, len(todo))
+    for a in range(0, len(todo), n):
+        part = todo[a:a + n]
+        if len(todo) > n:
+            say(f"batch {a // n + 1} of {(len(todo) + n - 1) // n}: {', '.join(d.name for d in part)}")
+        for d, res in zip(part, _diagnose_batch(ctx, part, settings, say)):
+            done[d.name] = res
+            if store is not None:
+                store.put(d, res)
+    return [done[nm] for nm in names]
+
+
+def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSettings,
+                    say) -> list[DatasetDiagnosis]:
+    s = settings
+    K = ctx.K
+    names = [d.name for d in data]
     folds = np.array([direction_folds(K, s.folds, derive_rng(s.seed, f"gap/folds/{n}")) for n in names]
                      ).reshape(len(data), K)
     effects = available_effects(ctx, s.effects)
@@ -438,25 +319,12 @@ def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSett
     say(f"{len(data)} data set(s), {K} directions, {eng.F} folds, {eng.P} fitting problems; effects: "
         f"{', '.join(e.name for e in effects)}")
     # ---- base model
-    base = eng.evaluate((), eng.prior)
+    eng.evaluate((), eng.prior)
     say(f"base model fitted ({eng.n_fits} fits so far)")
     # ---- single effects on their grids
-    cand_keys: dict[str, list[tuple]] = {"none": [()]}
-    cand_params: dict[str, int] = {"none": 0}
-    cand_datasets: dict[str, set[int]] = {"none": set(range(eng.nd))}
-    for e in effects:
-        grid = e.grid(s.grid_points)
-        done: list[tuple[np.ndarray, tuple]] = [(e.neutral, ())]
-        span = np.maximum(e.upper - e.lower, 1e-12)
-        for th in grid[1:]:
-            near = min(done, key=lambda t: float(np.linalg.norm((t[0] - th) / span)))
-            key = eng.key([(e.name, th)])
-            eng.evaluate(key, eng.results[near[1]]["phi"])
-            done.append((th, key))
-        cand_keys[e.name] = [k for _, k in done]
-        cand_params[e.name] = e.n_params
-        cand_datasets[e.name] = set(range(eng.nd))
-        say(f"effect {e.name}: {len(grid)} grid points ({eng.n_fits} fits so far)")
+    cand_keys = single_effect_grids(eng, effects, say)
+    cand_params: dict[str, int] = {"none": 0, **{e.name: e.n_params for e in effects}}
+    cand_datasets: dict[str, set[int]] = {c: set(range(eng.nd)) for c in cand_keys}
     per_problem = {c: [list(keys) for _ in range(eng.P)] for c, keys in cand_keys.items()}
 
     def scores_for(c):
@@ -471,6 +339,18 @@ def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSett
     cv_pred = {}
     for c in cand_keys:
         selections[c], cv_pred[c] = scores_for(c)
+
+    # ---- calibration: noise-only and effect replicates from each data set's fitted base model
+    cal = None
+    single_cands = ["none"] + [e.name for e in effects]
+    if s.calibration.replicates > 0:
+        pf = [int(np.nonzero((eng.pds == i) & (eng.pfold < 0))[0][0]) for i in range(eng.nd)]
+        Tm = eng.T[pf]
+        rms = np.column_stack([np.sqrt(np.mean(np.log(np.maximum(np.array(cv_pred[c]), 1e-12) / Tm) ** 2, axis=1))
+                               for c in single_cands])
+        cal = calibrate(ctx, names, folds, Tm, eng.results[()]["forces"][pf], eng.results[()]["phi"][pf], rms,
+                        effects, s, say)
+        say(f"calibration done ({s.calibration.replicates} noise-only replicates per data set)")
 
     def cv_score(c, i):
         d = _d(cv_pred[c][i], eng.T[i * (eng.F + 1)], s.epsilon)
@@ -521,20 +401,32 @@ def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSett
         if c == "none" or s.refine_iter <= 0:
             continue
         effs = [eng.registry[n] for n in c.split("+")]
-        refined[c] = _refine(eng, effs, list(selections[c]), s.refine_iter, cand_datasets[c])
-    if s.refine_iter > 0:
-        say(f"effect parameters refined ({eng.n_fits} fits)")
+        refined[c] = _refine(eng, effs, list(selections[c]), s.refine_iter, cand_datasets[c], s.refine_starts)
+        say(f"refined {c} ({eng.n_fits} fits so far)")
     # ---- per data set results
     out = []
     for i, dat in enumerate(data):
-        out.append(_dataset_result(eng, i, dat, cand_datasets, cand_params, selections, refined, cv_pred))
-        say(f"{dat.name}: chosen {out[-1].summary['chosen']}; held-out gap "
-            f"{out[-1].summary['gap_before']:.3f} -> {out[-1].summary['gap_after']:.3f} (1 - D_cv)")
+        out.append(_dataset_result(eng, i, dat, cand_datasets, cand_params, selections, refined, cv_pred,
+                                   None if cal is None else cal[i], single_cands))
+        sm = out[-1].summary
+        say(f"{dat.name}: {sm['decision']}; held-out gap {sm['gap_before']:.3f} -> {sm['gap_after']:.3f} (1 - D_cv)")
+    return out
+
+
+def _at_bounds(e: Effect, theta: np.ndarray) -> list[str]:
+    """Names of parameters at a bound of their range that is not their neutral value."""
+    out = []
+    for p, v in zip(e.params(), np.asarray(theta, float)):
+        tol = 1e-6 * max(p.hi - p.lo, 1e-12)
+        at_lo = abs(v - p.lo) <= tol and abs(p.lo - p.neutral) > tol
+        at_hi = abs(v - p.hi) <= tol and abs(p.hi - p.neutral) > tol
+        if at_lo or at_hi:
+            out.append(f"{e.name}.{p.name}")
     return out
 
 
 def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_params, selections, refined,
-                    cv_pred) -> DatasetDiagnosis:
+                    cv_pred, cal=None, singles=("none",)) -> DatasetDiagnosis:
     ctx, s = eng.ctx, eng.s
     K = ctx.K
     T = np.asarray(dat.forces, float)
@@ -549,7 +441,30 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
            else np.zeros((0, K), int))
     boot = np.array([[(1 - dcv[c][ix].mean()) + s.penalty * cand_params[c] for c in cands] for ix in idx])
     pbest = np.bincount(boot.argmin(axis=1), minlength=len(cands)) / max(B, 1) if B else np.full(len(cands), np.nan)
-    chosen = min(cands, key=lambda c: score[c])
+    best_score = min(cands, key=lambda c: score[c])
+    ca = s.calibration
+    dec, named_note = None, ""
+    if cal is None:
+        chosen = best_score
+        decision = f"best score: {chosen} (uncalibrated: no noise-only replicates)"
+    else:
+        dec = cal.decide(cal.gap_obs)                  # the screen's scores (fitted like the null's)
+        b = dec["best"]
+        neutral = dict(refined[b][pfull]).get(b) is None
+        pos = dec["delta"][cal.effects.index(b)] > 0
+        if dec["p_adjusted"] <= ca.alpha and pos and not neutral:
+            chosen = b
+            decision = (f"effect {b} (p = {dec['p_adjusted']:.3g} <= {ca.alpha:g}, adjusted for "
+                        f"{len(cal.effects)} effects)")
+        else:
+            chosen = "none"
+            why = ("its fitted size on all directions is neutral" if neutral and dec["p_adjusted"] <= ca.alpha
+                   else f"best {b}, p = {dec['p_adjusted']:.3g} > {ca.alpha:g}" if dec["p_adjusted"] > ca.alpha
+                   else f"best {b} does not improve the held-out gap")
+            decision = f"no effect detectable ({why})"
+        if best_score not in ("none", chosen):
+            named_note = (f"best score: {best_score} (score ranking, uncalibrated; pairs are not part of the "
+                          "calibrated decision)")
     rows = []
     for j, c in enumerate(cands):
         key = refined[c][pfull]
@@ -567,6 +482,11 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
                      "p_best": pbest[j], "D_fit": d_in.mean(),
                      "rms_rel_fit": float(np.sqrt(np.mean((f_in / T - 1) ** 2))),
                      "theta": theta or "-",
+                     "at_bound": ";".join(b for e in effs for b in _at_bounds(e, np.array(kd.get(e.name, e.neutral))))
+                     or "-",
+                     "p_raw": (float(dec["p_raw"][cal.effects.index(c)]) if dec is not None and c in cal.effects
+                               else np.nan),
+                     "z": float(dec["z"][cal.effects.index(c)]) if dec is not None and c in cal.effects else np.nan,
                      "theta_values": json.dumps({e.name: [float(v) for v in kd.get(e.name, tuple(e.neutral))]
                                                  for e in effs})})
     eff_tab = pd.DataFrame(rows).sort_values("score").reset_index(drop=True)
@@ -614,7 +534,35 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
         fmc = sim.muscles(phi)[0]
         _, _, _, al = sim.run(fmc[None], return_alpha=True)
         acts[c] = emg_group_activation(ctx, sim, fmc, al[0])
+    # ---- calibrated decision, remainder, power
+    cal_summary: dict = {"calibrated": cal is not None, "decision": decision, "best_score": best_score,
+                         "best_score_note": named_note, "alpha": ca.alpha if cal is not None else np.nan}
+    pw, pws = pd.DataFrame(), pd.DataFrame()
+    if cal is not None:
+        j = singles.index(chosen)
+        st = float(cal.structure_obs[j])
+        rem = cal.remainder(j, float(cal.gap_obs[j]), st)
+        unexplained = rem["p_structure"] <= ca.alpha or (np.isfinite(rem["p_gap"]) and rem["p_gap"] <= ca.alpha)
+        pl_ch = _plane_table(dirs, f_ch_full / T - 1, rcv[chosen], dcv[chosen])
+        where = ", ".join(f"{r.plane} (held-out mean residual {r.mean_residual_cv:+.2f})" for r in
+                          pl_ch.sort_values("rms_residual_cv", ascending=False).head(2).itertuples())
+        rem_text = (f"the remaining gap is not explained by any candidate: it lies in {where}" if unexplained else
+                    "the remaining held-out gap is consistent with noise")
+        pw, pws = cal.power, power_summary(cal.power, ca.power_target)
+        ch_row = eff_tab.set_index("candidate").loc[chosen]
+        cal_summary.update({
+            "named": chosen, "p_value": dec["p_adjusted"], "best_effect_calibrated": dec["best"],
+            "p_raw_best": float(dec["p_raw"][cal.effects.index(dec["best"])]), "T": dec["T"],
+            "noise_sigma": cal.sigma, "noise_source": cal.noise_source, "replicates": int(len(cal.t_null)),
+            "p_resolution": 1.0 / (len(cal.t_null) + 1), "power_target": ca.power_target,
+            "remainder_structure": st, "p_remainder_structure": rem["p_structure"],
+            "p_remainder_gap": rem["p_gap"], "remainder_unexplained": bool(unexplained), "remainder": rem_text,
+            "at_bound": str(ch_row["at_bound"]),
+            "power": {r.effect: (None if not np.isfinite(r.min_detectable_share) else r.min_detectable_share)
+                      for r in pws.itertuples()},
+            "power_statements": [f"{r.effect}: {r.statement}" for r in pws.itertuples()]})
     summary = {
+        **cal_summary,
         "dataset": dat.name, "model": ctx.model.name, "n_directions": K, "folds": int(eng.F),
         "chosen": chosen, "chosen_theta": eff_tab.set_index("candidate").loc[chosen, "theta"],
         "p_best_chosen": float(eff_tab.set_index("candidate").loc[chosen, "p_best"]),
@@ -632,4 +580,5 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
         "unreachable": list(resid.loc[resid["reach"] != "reachable", "direction"]),
         "penalty_per_param": s.penalty, "epsilon": s.epsilon,
     }
-    return DatasetDiagnosis(dat.name, resid, planes, comps, muscles, eff_tab, pd.DataFrame(srows), summary, acts)
+    return DatasetDiagnosis(dat.name, resid, planes, comps, muscles, eff_tab, pd.DataFrame(srows), summary, acts,
+                            pw, pws)

@@ -42,6 +42,7 @@ class FitSettings:
     tol: float = 1e-6
     lambda0: float = 1e-2
     chunk_size: int = 65536
+    exact_gradient: bool = True
 
 
 def make_cache(max_bases: int = 512):
@@ -134,6 +135,59 @@ class Simulator:
         """Forces for log free strengths (N x p), on the active candidate set (for the fit)."""
         return self.run(self.muscles(phi), active_only=True)[0]
 
+    def forces_grad_phi(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Forces (N x K) and their exact derivatives d F / d phi (N x K x p) on the active candidate set.
+
+        Envelope theorem on the LP (Eq. 4.1 / 5.2 in muscle forces): at an optimal vertex the multiplier
+        ``lam`` of ``R diag(f) alpha - b w = 0`` satisfies ``lam . b = 1`` and ``lam . R_j = 0`` for every
+        column strictly inside its activation bounds, and ``w = sum_j (lam . R_j) alpha_j f_j``, so
+        ``dw / df_j = (lam . R_j) alpha_j`` (one side of a kink, as a forward difference would be). ``lam``
+        is solved from the interior columns of the returned activations (least squares, min-norm at
+        degenerate vertices); the chain rule goes through the column map ``A``, the force scale and
+        ``f = exp(phi)[pidx]``. One LP per sample and direction instead of ``p + 1`` for finite differences.
+        """
+        phi = np.atleast_2d(np.asarray(phi, float))
+        Fm = self.muscles(phi)                                   # (N, m) base-model strengths
+        inst = self.inst
+        Fa = inst.strengths(Fm)                                  # (N, m') column strengths
+        N, K, J = len(Fm), self.K, inst.J
+        use = self.active if J > 1 else np.ones((K, J), bool)
+        sel = use.ravel()
+        w_s, alpha_s, status_s = solve(self.model, Fa, self.U[sel], self.lb[sel], self.ub[sel],
+                                       return_alpha=True, chunk_size=self.chunk, cache=self.cache)
+        self.n_lp += w_s.size
+        ok = np.isfinite(w_s) & (status_s == _OPT) & (w_s > 0)
+        w_s = np.where(ok, w_s, 0.0)
+        al = np.nan_to_num(alpha_s)                              # (N, S, m')
+        lb, ub = self.lb[sel], self.ub[sel]                      # (S, m')
+        tol = 1e-7
+        interior = (al > lb[None] + tol) & (al < ub[None] - tol) & (Fa[:, None, :] > 0)
+        Rm = self.model.moment_arms                              # (n, m')
+        b = (self.model.JT @ self.U[sel].T).T                    # (S, n)
+        n = Rm.shape[0]
+        G = np.einsum("sa,sb->sab", b, b)[None] + np.einsum("isj,aj,bj->isab", interior.astype(float), Rm, Rm)
+        scale = np.einsum("isaa->is", G)[..., None, None]
+        G = G + 1e-12 * np.maximum(scale, 1e-30) * np.eye(n)[None, None]
+        lam = np.linalg.solve(G, np.broadcast_to(b[None], (N,) + b.shape)[..., None])[..., 0]   # (N, S, n)
+        gcol = np.einsum("isn,nj->isj", lam, Rm) * al * ok[..., None]                        # dw/dFa (N, S, m')
+        gcol = gcol * (Fa > 0)[:, None, :]
+        gmus = gcol @ inst.A                                     # dw/dF base muscles (N, S, m)
+        wf = np.full((N, K * J), -1.0)
+        wf[:, sel] = w_s
+        fm = np.repeat(self.fmul.reshape(1, K * J), N, axis=0)
+        forces = np.where(wf >= 0, wf * fm, -1.0).reshape(N, K, J)
+        j = forces.argmax(axis=2)
+        f = np.maximum(np.take_along_axis(forces, j[..., None], 2)[..., 0], 0.0)
+        gfull = np.zeros((N, K * J, gmus.shape[2]))
+        gfull[:, sel] = gmus * self.fmul.reshape(K * J)[sel][None, :, None]
+        g = np.take_along_axis(gfull.reshape(N, K, J, -1), j[..., None, None], 2)[:, :, 0]   # (N, K, m)
+        p = int(self.pidx.max()) + 1
+        dphi = np.zeros((N, K, p))
+        for q in range(p):
+            cols = self.pidx == q
+            dphi[:, :, q] = (g[:, :, cols] * Fm[:, None, cols]).sum(axis=2)
+        return f, dphi
+
 
 @dataclass
 class FitResult:
@@ -168,14 +222,17 @@ def _loss(F: np.ndarray, T: np.ndarray, W: np.ndarray, phi: np.ndarray, prior: n
 
 
 def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarray, weights: np.ndarray,
-                  phi0: np.ndarray, prior: np.ndarray, settings: FitSettings = FitSettings()) -> FitResult:
+                  phi0: np.ndarray, prior: np.ndarray, settings: FitSettings = FitSettings(),
+                  fgrad: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None) -> FitResult:
     """Levenberg-Marquardt on the log free strengths of P problems at once.
 
     ``fforces(phi)`` maps (N x p) log free strengths to (N x K) predicted forces; ``targets`` (P x K)
     measured forces; ``weights`` (P x K) 1 = training direction, 0 = not used (held out);
     ``phi0`` (P x p) start; ``prior`` (P x p) ridge centre; bounds are ``prior + log(bounds_rel)``.
     Held-out directions enter neither the loss nor any step (their weight is 0), only the returned
-    predictions.
+    predictions. ``fgrad(phi)`` (optional) returns forces and their exact Jacobian (N x K x p,
+    :meth:`Simulator.forces_grad_phi`); then each iteration solves the LPs of the damping trials only
+    (the Jacobian at the accepted trial comes with it) instead of ``p`` extra forward differences.
     """
     s = settings
     T = np.asarray(targets, float)
@@ -185,7 +242,10 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
     hi = prior + np.log(s.bounds_rel[1])
     phi = np.clip(np.asarray(phi0, float).copy(), lo, hi)
     P, p = phi.shape
-    F = fforces(phi)
+    if fgrad is not None:
+        F, Jac = fgrad(phi)
+    else:
+        F, Jac = fforces(phi), None
     loss, sse = _loss(F, T, W, phi, prior, s.ridge)
     mu = np.full(P, s.lambda0)
     stall = np.zeros(P, int)
@@ -200,10 +260,13 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
             break
         A = len(idx)
         ph = phi[idx]
-        hsign = np.where(ph + s.fd_step > hi[idx], -1.0, 1.0)                     # (A, p)
-        Ph = ph[:, None, :] + s.fd_step * hsign[:, None, :] * eye[None]          # (A, p, p)
-        Fh = fforces(Ph.reshape(-1, p)).reshape(A, p, -1)
-        Jr = (Fh - F[idx][:, None, :]) / (s.fd_step * hsign[:, :, None]) / T[idx][:, None, :]   # (A, p, K)
+        if Jac is not None:
+            Jr = Jac[idx].transpose(0, 2, 1) / T[idx][:, None, :]                  # (A, p, K)
+        else:
+            hsign = np.where(ph + s.fd_step > hi[idx], -1.0, 1.0)                 # (A, p)
+            Ph = ph[:, None, :] + s.fd_step * hsign[:, None, :] * eye[None]      # (A, p, p)
+            Fh = fforces(Ph.reshape(-1, p)).reshape(A, p, -1)
+            Jr = (Fh - F[idx][:, None, :]) / (s.fd_step * hsign[:, :, None]) / T[idx][:, None, :]
         Jm = Jr.transpose(0, 2, 1) * sw[idx][:, :, None]                         # (A, K, p)
         r = sw[idx] * (F[idx] / T[idx] - 1.0)
         JTJ = np.einsum("akp,akq->apq", Jm, Jm)
@@ -215,7 +278,12 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
             Hm = H + (mu[idx] * mt)[:, None, None] * (dg[:, :, None] * eye[None] + 1e-9 * eye[None])
             steps[:, t] = -np.linalg.solve(Hm, g[..., None])[..., 0]
         trial = np.clip(ph[:, None, :] + steps, lo[idx][:, None, :], hi[idx][:, None, :])
-        Ft = fforces(trial.reshape(-1, p)).reshape(A, len(mults), -1)
+        if Jac is not None:
+            Ft, Jt = fgrad(trial.reshape(-1, p))
+            Ft = Ft.reshape(A, len(mults), -1)
+            Jt = Jt.reshape(A, len(mults), Ft.shape[2], p)
+        else:
+            Ft = fforces(trial.reshape(-1, p)).reshape(A, len(mults), -1)
         lt, st = _loss(Ft, T[idx][:, None, :], W[idx][:, None, :], trial, prior[idx][:, None, :], s.ridge)
         best = lt.argmin(axis=1)
         lb = lt[np.arange(A), best]
@@ -226,6 +294,8 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
             if better[a]:
                 phi[i] = trial[a, best[a]]
                 F[i] = Ft[a, best[a]]
+                if Jac is not None:
+                    Jac[i] = Jt[a, best[a]]
                 loss[i], sse[i] = lb[a], st[a, best[a]]
                 mu[i] = max(mu[i] * mults[best[a]], 1e-12)
                 stall[i] = stall[i] + 1 if rel[a] < s.tol else 0

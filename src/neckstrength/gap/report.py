@@ -148,12 +148,40 @@ def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping
         _save(fig, out["activation"])
 
 
+def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
+    s = diag.summary
+    if not s.get("calibrated"):
+        return ["## Decision", "", "Uncalibrated: no noise-only replicates were simulated (`gap.calibration."
+                "replicates` = 0); the candidate with the best score is reported without a p-value.", ""]
+    lines = ["## Decision (calibrated)", "",
+             f"- **Named effect**: {s['decision']}. Adjusted p-value {s['p_value']:.3g} (maxT over "
+             f"{len(diag.power_summary)} effects; {s['replicates']} noise-only replicates simulated from this data "
+             f"set's fitted base model, so p-values have resolution {s['p_resolution']:.3g}); the raw p-value of "
+             f"the best effect `{s['best_effect_calibrated']}` alone is {s['p_raw_best']:.3g}.",
+             f"- **Noise level** of the replicates: log-normal SD {s['noise_sigma']:.3f} ({s['noise_source']}"
+             + (": the smallest RMS log held-out residual over the candidates" if s['noise_source'] == "heldout"
+                else ": given in the config") + ").",
+             f"- **Remainder**: {s['remainder']} (plane structure of the held-out residuals "
+             f"{s['remainder_structure']:.2f},"
+             f" p = {s['p_remainder_structure']:.3g}"
+             + (f"; held-out gap p = {s['p_remainder_gap']:.3g}" if np.isfinite(s.get('p_remainder_gap', np.nan))
+                else "; the held-out gap itself is not tested because the noise level was estimated from it")
+             + ").", "",
+             "### Power per effect", "",
+             "Smallest simulated effect size (share of the way from neutral to the far bound of its range) that this "
+             f"diagnosis names in at least {100 * s['power_target']:.0f}% of the data sets simulated from this "
+             "data set's fitted model at its noise level:", ""]
+    lines += [f"- `{r.effect}`: {r.statement}" for r in diag.power_summary.itertuples()]
+    lines += ["", markdown_table(diag.power), ""]
+    return lines
+
+
 def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str, str], act: pd.DataFrame,
                  settings_text: str) -> str:
     s = diag.summary
     ef = diag.effects.copy()
     show = ef[["rank", "candidate", "n_params", "gap_cv", "rms_rel_cv", "score", "delta_ci_low", "delta_ci_high",
-               "p_best", "D_fit", "theta"]]
+               "p_best", "p_raw", "z", "D_fit", "theta", "at_bound"]]
     res = diag.residuals
     unreach = res[res["reach"] != "reachable"][["direction", "measured_N", "fit_N", "reach_s_min", "reach_s_max",
                                                 "reach"]]
@@ -168,10 +196,15 @@ def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str,
              f"strong in `{s['model_too_strong_plane']}` ({s['model_too_strong_mean_residual']:+.2f}); directions "
              f"outside the model's reach envelope (no strengths within the bounds fit them): "
              f"{', '.join(s['unreachable']) if s['unreachable'] else 'none'}.",
-             f"- **Which**: `{s['chosen']}` ({s['chosen_theta']}), bootstrap P(best) = {s['p_best_chosen']:.2f}.",
+             f"- **Which**: {s['decision']}"
+             + (f"; `{s['chosen']}` fitted at {s['chosen_theta']}" if s['chosen'] != "none" else "")
+             + f"; bootstrap P(best) of `{s['chosen']}` = "
+             f"{s['p_best_chosen']:.2f}." + (f" {s['best_score_note']}." if s.get("best_score_note") else "")
+             + (f" Parameters at a bound of their range: {s['at_bound']}." if s.get("at_bound", "-") != "-" else ""),
              f"- **How far**: held-out gap {s['gap_before']:.3f} -> {s['gap_after']:.3f}; held-out RMS relative "
              f"residual {s['rms_before']:.3f} -> {s['rms_after']:.3f}; all-direction fit D {s['D_fit_base']:.3f} -> "
              f"{s['D_fit_chosen']:.3f} (the thesis's D(f_c) for this kind of fit).", "",
+             *_calibration_lines(diag),
              "## Which effect: ranking", "", markdown_table(show), "",
              "`delta_ci_*`: 90% bootstrap interval (directions resampled) of the score difference to `none`; "
              "`p_best`: share of bootstrap samples in which the candidate ranks first; `D_fit`: fit on all "

@@ -17,10 +17,11 @@ import pandas as pd
 from neckstrength.gap.diagnose import BlindData, DiagnosisSettings, diagnose
 from neckstrength.gap.effects import GapContext
 from neckstrength.gap.report import activation_check, write_figures, write_report
+from neckstrength.gap.store import ResultStore
 from neckstrength.io import atomic_write_csv, atomic_write_text
 
 #: Per-data-set tables and figures (keys of ``outputs``; plus 'summary' and 'report').
-DATASET_FILES = ("residuals", "planes", "components", "muscles", "effects", "strengths", "activation_check")
+DATASET_FILES = ("residuals", "planes", "components", "muscles", "effects", "strengths", "activation_check", "power")
 FIGURES = ("radar", "where", "effects", "activation")
 
 
@@ -32,11 +33,16 @@ def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings,
     dataset = data.name
     s = settings
     print(f"gap diagnosis: model {model_name}, data set {dataset}, {ctx.K} directions, forces only", flush=True)
-    diag = diagnose(ctx, [data], s, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}", flush=True))[0]
+    store = ResultStore(Path(outputs["summary"]).parent / "resume", ctx, s)
+    diag = diagnose(ctx, [data], s, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}", flush=True),
+                    store=store)[0]
     act = activation_check(diag, a3)
     hdr = [f"gap diagnosis (issue 8): model {model_name}, data set {dataset}; forces only (Table A.3 withheld)"]
     tables = {"residuals": diag.residuals, "planes": diag.planes, "components": diag.components,
               "muscles": diag.muscles, "effects": diag.effects, "strengths": diag.strengths,
+              "power": diag.power if len(diag.power) else pd.DataFrame(
+                  {"effect": [], "size_share": [], "theta": [], "replicates": [], "skipped_unproducible": [],
+                   "identified": [], "power": []}),
               "activation_check": act if len(act) else pd.DataFrame(
                   {"candidate": [], "pearson_r": [], "spearman_rho": [], "model_mean": [], "a3_mean": [],
                    "mean_abs_diff": []})}
@@ -68,6 +74,6 @@ def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings,
     summary["seconds"] = time.time() - t0
     write_report(diag, outputs["report"], rel, act, settings_text)
     atomic_write_text(json.dumps(summary, indent=2, default=float), outputs["summary"])
-    print(f"done in {time.time() - t0:.0f} s: chosen {summary['chosen']}, held-out gap "
+    print(f"done in {time.time() - t0:.0f} s: {summary['decision']}, held-out gap "
           f"{summary['gap_before']:.3f} -> {summary['gap_after']:.3f}")
     return summary

@@ -12,6 +12,7 @@ import pandas as pd
 
 from neckstrength.config import (
     benchmark_settings,
+    calibration_settings,
     derive_rng,
     diagnosis_settings,
     gap_blind_dataset,
@@ -23,6 +24,7 @@ from neckstrength.gap.benchmark import run_benchmark
 from neckstrength.gap.diagnose import DiagnosisSettings
 from neckstrength.gap.report import markdown_table
 from neckstrength.gap.run import run_diagnosis
+from neckstrength.gap.store import ResultStore
 from neckstrength.io import atomic_write_csv, atomic_write_text
 from neckstrength.pipeline.common import load_directions
 
@@ -49,7 +51,9 @@ def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summar
                      "model_too_weak_in": s["model_too_weak_plane"], "model_too_strong_in": s["model_too_strong_plane"],
                      "worst_directions": ";".join(s["worst_directions"]),
                      "unreachable": ";".join(s["unreachable"]) or "-", "chosen": s["chosen"],
-                     "chosen_theta": s["chosen_theta"], "p_best": s["p_best_chosen"],
+                     "chosen_theta": s["chosen_theta"], "p_value": s.get("p_value", np.nan),
+                     "decision": s.get("decision", ""), "noise_sigma": s.get("noise_sigma", np.nan),
+                     "remainder": s.get("remainder", ""), "p_best": s["p_best_chosen"],
                      "gap_before": s["gap_before"], "gap_after": s["gap_after"],
                      "rms_before": s["rms_before"], "rms_after": s["rms_after"],
                      "D_fit_base": s["D_fit_base"], "D_fit_chosen": s["D_fit_chosen"],
@@ -67,7 +71,8 @@ def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summar
                    "worst_component": df["worst_component"].mode().iloc[0],
                    "model_too_weak_in": df["model_too_weak_in"].mode().iloc[0],
                    "model_too_strong_in": df["model_too_strong_in"].mode().iloc[0], "worst_directions": "",
-                   "unreachable": "", "chosen": df["chosen"].mode().iloc[0], "chosen_theta": ""})
+                   "unreachable": "", "chosen": df["chosen"].mode().iloc[0], "chosen_theta": "", "decision": "",
+                   "remainder": ""})
     df = pd.concat([df, pd.DataFrame([pooled])], ignore_index=True)
     atomic_write_csv(df, out_csv, [f"gap diagnosis pooled over data sets ({model_name}): where / which / how far, "
                                    "held-out gap = 1 - D_cv (Eq. 5.5 on held-out directions)",
@@ -95,35 +100,60 @@ def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
     b = config["gap"]["benchmark"]
     bs = benchmark_settings(config)
     ds = diagnosis_settings(config, b.get("diagnosis_effects"))
+    cal = calibration_settings({"gap": {"calibration": {**(config["gap"].get("calibration") or {}),
+                                                         **(b.get("calibration") or {})}}})
     ds = DiagnosisSettings(**{**ds.__dict__, "folds": b.get("folds", ds.folds),
                               "bootstrap": b.get("bootstrap", ds.bootstrap), "starts": b.get("starts", ds.starts),
-                              "reach_samples": 0, "reach_iter": 0})
+                              "refine_iter": b.get("refine_iter", ds.refine_iter), "pairs_top": b.get("pairs_top",
+                                                                                                      ds.pairs_top),
+                              "reach_samples": 0, "reach_iter": 0, "calibration": cal})
     rng = derive_rng(config["seed"], f"gap-benchmark/{model_name}")
+    store = ResultStore(Path(outputs["summary"]).parent / "resume", ctx, ds)
     cases, diags, tabs = run_benchmark(ctx, bs, ds, rng, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}",
-                                                                                  flush=True))
-    hdr = [f"withheld-effect benchmark ({model_name}): {len(cases)} cases, noise {bs.noise_rel} (log-normal SD), "
-           f"strength spread {bs.strength_spread}, effect size {bs.clear_size} of the way to the far bound",
-           f"diagnosis effects: {', '.join(ds.effects)}; the diagnosis saw forces only"]
+                                                                                  flush=True),
+                                       store=store, chunk=b.get("chunk"))
+    hdr = [f"withheld-effect benchmark ({model_name}): {len(cases)} cases ({bs.mismatch_replicates} per effect with "
+           f"finer muscle control in the truth), noise {bs.noise_rel} (log-normal SD), strength spread "
+           f"{bs.strength_spread}, effect size {bs.clear_size} of the way to the far bound",
+           f"diagnosis effects: {', '.join(ds.effects)}; the diagnosis saw forces only; calibration "
+           f"{cal.replicates} noise-only replicates, alpha {cal.alpha}, power sizes {list(cal.power_sizes)} x "
+           f"{cal.power_replicates}"]
     atomic_write_csv(tabs["confusion"], outputs["confusion"], hdr + ["rows: injected effect; columns: identified"])
     atomic_write_csv(tabs["per_case"], outputs["cases"], hdr, float_format="%.4g")
     atomic_write_csv(tabs["effect_size"], outputs["effect_size"], hdr, float_format="%.4g")
+    atomic_write_csv(tabs["accuracy"], outputs["accuracy"], hdr, float_format="%.4g")
     pc = tabs["per_case"]
     n_cand = len(set(ds.effects)) + 1
     acc = float(pc["correct"].mean())
+    ctrl = pc[pc["injected"] == "none"]
+    det = pc[(pc["injected"] != "none") & pc["detectable"]]
+    false_alarm = float((ctrl["identified"] != "none").mean()) if len(ctrl) else float("nan")
+    acc_det = float(det["correct"].mean()) if len(det) else float("nan")
     summ = {"model": model_name, "cases": len(cases), "accuracy": acc, "overlap_rate": float(pc["overlap"].mean()),
             "chance_single": 1.0 / n_cand, "mean_shrink_share": float(pc["shrink_share"].mean()),
             "mean_abs_effect_size_error_share": float(tabs["effect_size"]["error_share_of_range"].abs().mean())
-            if len(tabs["effect_size"]) else None, "seconds": time.time() - t0}
+            if len(tabs["effect_size"]) else None,
+            "false_alarm_rate": false_alarm if len(ctrl) else None, "controls": len(ctrl),
+            "accuracy_detectable": acc_det if len(det) else None, "detectable_cases": len(det),
+            "goal_accuracy_detectable": 0.8, "goal_false_alarm": 0.1,
+            "goals_met": bool(len(det) and len(ctrl) and acc_det >= 0.8 and false_alarm <= 0.1),
+            "seconds": time.time() - t0}
     text = ["# Withheld-effect benchmark", "", hdr[0], "", hdr[1], "", "## Confusion matrix (rows injected, columns "
             "identified)", "", markdown_table(tabs["confusion"], ".0f"), "",
             f"Accuracy {acc:.2f} (chance for one guess among {n_cand} single candidates incl. none: "
             f"{1 / n_cand:.2f}); identified and injected share an effect in {summ['overlap_rate']:.2f} of cases.", "",
+            "## Accuracy by detectability (goals: >= 0.80 on detectable cases, <= 0.10 false alarms)", "",
+            f"False alarms on controls: {false_alarm:.2f} ({len(ctrl)} controls); correct on cases the power analysis "
+            f"calls detectable: {acc_det:.2f} ({len(det)} cases).", "", markdown_table(tabs["accuracy"]), "",
             "## Per case", "", markdown_table(pc), "", "## Effect size", "",
             markdown_table(tabs["effect_size"]), ""]
     atomic_write_text("\n".join(text), outputs["report"])
     atomic_write_text(json.dumps(summ, indent=2), outputs["summary"])
     print("\nconfusion matrix (rows: injected, columns: identified):")
     print(tabs["confusion"].to_string(index=False))
-    print(f"\naccuracy {acc:.2f} vs chance {1 / n_cand:.2f}; mean shrinkage share {summ['mean_shrink_share']:.2f}; "
+    print("\naccuracy by detectability:")
+    print(tabs["accuracy"].to_string(index=False))
+    print(f"\nfalse alarms on controls {false_alarm:.2f} (goal <= 0.10); correct on detectable cases {acc_det:.2f} "
+          f"(goal >= 0.80, {len(det)} cases); overall accuracy {acc:.2f} vs chance {1 / n_cand:.2f}; "
           f"{time.time() - t0:.0f} s")
     return tabs

@@ -1,0 +1,292 @@
+"""Calibrated decision, remainder test and power of the gap diagnosis (issue 17, items 1-3).
+
+**Null.** For each data set, noise-only data sets are simulated from its own fitted base model (the fit on
+all directions; strengths drawn from the fit's Laplace uncertainty, :func:`truth_strengths`) with log-normal
+noise of SD ``sigma``: 'heldout' = the root mean square of the log held-out
+residuals of the best single candidate (the candidate with the smallest one; base model or one effect), or a
+number given by the user (e.g. from repeat trials). The measured data set and its simulated ones are *screened*
+alike, in one batch: the base model and every single effect on its grid, fitted from the same start point with
+the calibration's ``starts`` and ``max_iter`` on the data set's fold split, each fold choosing its grid point by
+training loss, scored by the held-out gap ``1 - D_cv``. The decision uses the measured data set's screen scores,
+so that its statistic and the null's come from the same procedure (fitting the simulated data from their truth,
+or with other settings than the data, would make the test anti-conservative: an effect would "improve" the
+data merely by reaching a better optimum). The full diagnosis (more starts, pairs, refinement) gives the
+ranking, the fitted sizes and the "where" tables.
+
+**Decision (maxT).** Per effect ``e`` the improvement ``delta_e = gap_none - gap_e``; standardised by its
+null mean and SD, ``z_e = (delta_e - mu_e) / sd_e``; ``T = max_e z_e``. The adjusted p-value of the data set is
+``(1 + #{null replicates with T >= T_obs}) / (R + 1)`` (Westfall-Young max-statistic: it accounts for choosing
+the best of the effects, so the false-alarm rate of the decision is ``alpha`` over the whole candidate set).
+The effect with the largest ``z`` is named when the adjusted p-value is at most ``alpha``, its improvement is
+positive and its fitted size (fit on all directions) is not neutral; otherwise "no effect detectable".
+The raw per-effect p-value ``(1 + #{delta_e^null >= delta_e}) / (R + 1)`` is reported in the ranking.
+
+**Remainder.** After the named effect (or the base model), the held-out log residuals are tested for
+structure by plane of the 3 x 3 grid (Fig. 4.2 / A.3): ``S`` = share of their sum of squares explained by plane
+means (least squares on plane indicators; scale-free, so valid with an estimated noise level), against the same
+effect's ``S`` in the null replicates. When the noise level is given (not estimated from these residuals) the
+held-out gap itself is tested too. Either significant: "the remaining gap is not explained by any candidate".
+
+**Power.** For each effect and size in ``power_sizes`` (share of the way from neutral to the far bound, both
+bounds alternating over replicates for two-sided parameters), ``power_replicates`` data sets are simulated from
+the fitted base model with the effect at that size and noise ``sigma``, screened and decided exactly as the data;
+power = share in which that effect is named. The smallest size with power >= ``power_target`` is the data set's
+detectable size for the effect; none: undetectable at every size within its bound.
+
+All simulated data sets of all data sets are fitted in one engine (shared solver calls). Every draw derives
+from the seed and the data set's name.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from neckstrength.gap.effects import Effect, GapContext, base_instance, compose
+from neckstrength.gap.engine import (
+    BlindData,
+    CalibrationSettings,
+    DiagnosisSettings,
+    _d,
+    _Engine,
+    cv_predictions,
+    single_effect_grids,
+)
+from neckstrength.gap.fit import FitSettings, Simulator
+from neckstrength.seeds import derive_rng
+
+
+def plane_indicators(directions: pd.DataFrame) -> np.ndarray:
+    """(K x planes) membership of each direction in the planes of the 3 x 3 grid (column ``planes``)."""
+    sets = [set(str(p).split(";")) for p in directions["planes"]]
+    names = sorted(set().union(*sets) - {"", "nan"})
+    return np.array([[n in s for n in names] for s in sets], float).reshape(len(sets), len(names))
+
+
+def plane_structure(logres: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Share of the sum of squares of log residuals (n x K) explained by plane means (least squares on X)."""
+    r = np.atleast_2d(logres)
+    if X.shape[1] == 0:
+        return np.zeros(len(r))
+    B, *_ = np.linalg.lstsq(X, r.T, rcond=None)
+    fit = (X @ B).T
+    ss = (r ** 2).sum(axis=1)
+    return np.where(ss > 0, (fit ** 2).sum(axis=1) / np.maximum(ss, 1e-300), 0.0)
+
+
+@dataclass
+class Screen:
+    """Held-out gap and plane structure of every candidate ('none' and each single effect) per data set."""
+
+    names: list[str]
+    candidates: list[str]
+    gap: np.ndarray          # (data sets x candidates)
+    structure: np.ndarray    # (data sets x candidates)
+    rms: np.ndarray          # (data sets x candidates) RMS log held-out residual
+
+
+def screen_scores(ctx: GapContext, T: np.ndarray, preds: dict[str, np.ndarray], eps: float,
+                  X: np.ndarray, names: list[str]) -> Screen:
+    cands = list(preds)
+    gap = np.column_stack([1 - _d(preds[c], T, eps).mean(axis=1) for c in cands])
+    lr = {c: np.log(np.maximum(preds[c], 1e-12) / T) for c in cands}
+    st = np.column_stack([plane_structure(lr[c], X) for c in cands])
+    rms = np.column_stack([np.sqrt((lr[c] ** 2).mean(axis=1)) for c in cands])
+    return Screen(names, cands, gap, st, rms)
+
+
+def screen(ctx: GapContext, data: list[BlindData], folds: np.ndarray, effects: list[Effect],
+           s: DiagnosisSettings, say=None) -> Screen:
+    """Base model and every single effect on its grid, cross-validated on ``folds`` (data sets x K), all data
+    sets fitted alike (the diagnosis's start point, the calibration's ``starts`` and ``max_iter``)."""
+    cs = s.calibration
+    s2 = DiagnosisSettings(**{**s.__dict__, "starts": cs.starts,
+                              "fit": FitSettings(**{**s.fit.__dict__, "max_iter": cs.max_iter})})
+    eng = _Engine(ctx, data, s2, folds, {e.name: e for e in effects}, full=False)
+    eng.evaluate((), eng.prior)
+    keys = single_effect_grids(eng, effects, say, tag="  simulated data: ")
+    preds = {c: cv_predictions(eng, k) for c, k in keys.items()}
+    T = np.array([d.forces for d in data], float)
+    return screen_scores(ctx, T, preds, s.epsilon, plane_indicators(ctx.directions), [d.name for d in data])
+
+
+def size_theta(e: Effect, u: float, sign: int) -> np.ndarray:
+    """Parameters ``u`` of the way from neutral to a bound (the upper one for ``sign`` > 0 where both exist)."""
+    th = []
+    for p in e.params():
+        up, down = p.hi - p.neutral, p.neutral - p.lo
+        if up > 1e-12 and down > 1e-12:
+            far = p.hi if sign > 0 else p.lo
+        else:
+            far = p.hi if up >= down else p.lo
+        th.append(p.neutral + u * (far - p.neutral))
+    return np.array(th)
+
+
+def maxt(delta: np.ndarray, mu: np.ndarray, sd: np.ndarray, t_null: np.ndarray):
+    """Standardised improvements z (n x E), the best effect per row, T = max z and its adjusted p-value."""
+    z = (delta - mu[None]) / sd[None]
+    t = z.max(axis=1)
+    p = (1 + (t_null[None, :] >= t[:, None] - 1e-12).sum(axis=1)) / (len(t_null) + 1)
+    return z, z.argmax(axis=1), t, p
+
+
+@dataclass
+class Calibration:
+    """Per data set: noise level, null summaries, decision inputs and the power table."""
+
+    sigma: float
+    noise_source: str
+    effects: list[str]
+    delta_null: np.ndarray       # (R x E)
+    mu: np.ndarray
+    sd: np.ndarray
+    t_null: np.ndarray           # (R,)
+    gap_null: np.ndarray         # (R x (1 + E)), 'none' first
+    structure_null: np.ndarray   # (R x (1 + E))
+    power: pd.DataFrame
+    gap_obs: np.ndarray          # (1 + E) the measured data set's screen: held-out gaps
+    structure_obs: np.ndarray    # (1 + E) and plane structure of its held-out log residuals
+
+    def decide(self, gap: np.ndarray) -> dict:
+        """``gap``: held-out gaps ('none' first, then the effects in ``effects`` order) of one data set."""
+        delta = gap[0] - gap[1:]
+        z, best, t, p_adj = maxt(delta[None], self.mu, self.sd, self.t_null)
+        R = len(self.delta_null)
+        p_raw = (1 + (self.delta_null >= delta[None] - 1e-12).sum(axis=0)) / (R + 1)
+        return {"delta": delta, "z": z[0], "best": self.effects[int(best[0])], "T": float(t[0]),
+                "p_adjusted": float(p_adj[0]), "p_raw": p_raw}
+
+    def remainder(self, j: int, gap: float, structure: float) -> dict:
+        """Tests of candidate ``j`` (0 = none)'s remaining held-out gap against the same null."""
+        R = len(self.gap_null)
+        p_s = (1 + (self.structure_null[:, j] >= structure - 1e-12).sum()) / (R + 1)
+        p_g = ((1 + (self.gap_null[:, j] >= gap - 1e-12).sum()) / (R + 1)) if self.noise_source != "heldout" \
+            else np.nan
+        return {"p_structure": float(p_s), "p_gap": float(p_g)}
+
+
+def truth_strengths(sim: Simulator, phi_fit: np.ndarray, T: np.ndarray, sigma: float, spread: float, n: int,
+                    rng: np.random.Generator) -> np.ndarray:
+    """``n`` log strength vectors for simulated data sets: the fit plus a draw from its Laplace uncertainty,
+    ``N(phi_fit, (J'J / sigma^2 + I / spread^2)^-1)`` with ``J`` the exact Jacobian of the relative forces at
+    the fit (all directions) and ``spread`` the individual spread of log strengths. Strengths the directions
+    determine vary by their estimation error; strengths they leave open vary like individuals do, so the
+    simulated data are as hard to predict held out as real ones (the fit alone, pulled to the prior by the
+    ridge where the directions say nothing, would make them easier and the test anti-conservative)."""
+    if n == 0:
+        return np.zeros((0, len(phi_fit)))
+    _, G = sim.forces_grad_phi(phi_fit[None])
+    J = G[0] / T[:, None]
+    p = len(phi_fit)
+    prec = J.T @ J / max(sigma, 1e-6) ** 2 + np.eye(p) / max(spread, 1e-6) ** 2
+    L = np.linalg.cholesky(np.linalg.inv(prec) + 1e-12 * np.eye(p))
+    return phi_fit[None] + rng.normal(0.0, 1.0, (n, p)) @ L.T
+
+
+def estimate_noise(rms_heldout: np.ndarray, setting) -> tuple[float, str]:
+    """Log-normal noise SD: the given number, or the smallest held-out RMS log residual over the candidates."""
+    if isinstance(setting, (int, float)) and not isinstance(setting, bool):
+        return float(setting), "given"
+    if setting != "heldout":
+        raise ValueError(f"gap.calibration.noise: 'heldout' or a number, not {setting!r}")
+    return float(np.nanmin(rms_heldout)), "heldout"
+
+
+def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarray, f_fit: np.ndarray,
+              phi_fit: np.ndarray, rms_obs: np.ndarray, effects: list[Effect], s: DiagnosisSettings,
+              say=None) -> list[Calibration]:
+    """Null and power replicates for every data set (``names``, fold splits, measured forces ``T``, base fit
+    forces ``f_fit`` and log strengths ``phi_fit``, held-out RMS log residuals per candidate ``rms_obs``)."""
+    say = say or (lambda msg: None)
+    cs: CalibrationSettings = s.calibration
+    R, nd, K = int(cs.replicates), len(names), ctx.K
+    E = [e.name for e in effects]
+    sig = [estimate_noise(rms_obs[i], cs.noise) for i in range(nd)]
+    sims, meta = [], []                                    # simulated data sets and (data set, kind, effect, size)
+    sim_base = Simulator(ctx, base_instance(ctx))
+    phis = {}                                              # truth log strengths per data set: (R + power reps) x p
+    n_pow = len(cs.power_sizes) * cs.power_replicates
+    for i, n in enumerate(names):
+        phis[i] = truth_strengths(sim_base, phi_fit[i], T[i], sig[i][0], cs.strength_spread, R + n_pow,
+                                  derive_rng(s.seed, f"gap/truth/{n}"))
+        f_null = sim_base.forces(sim_base.muscles(phis[i][:R])) if R else np.zeros((0, K))
+        f_null = np.maximum(f_null, 1e-3 * np.median(f_fit[i]))       # a direction the draw cannot produce
+        z = derive_rng(s.seed, f"gap/null/{n}").normal(0.0, 1.0, (R, K))
+        for r in range(R):
+            sims.append(BlindData(f"{n}/null{r}", f_null[r] * np.exp(sig[i][0] * z[r])))
+            meta.append((i, "null", "", 0.0))
+    for e in effects:
+        for a, u in enumerate(cs.power_sizes):
+            truth = {}
+            for sign in (1, -1):
+                sim = Simulator(ctx, compose(ctx, [e], [size_theta(e, u, sign)]))
+                truth[sign] = [sim.forces(sim.muscles(phis[i][R + a * cs.power_replicates:
+                                                               R + (a + 1) * cs.power_replicates]))
+                               for i in range(nd)] if cs.power_replicates else [np.zeros((0, K))] * nd
+            for i, n in enumerate(names):
+                z = derive_rng(s.seed, f"gap/power/{n}/{e.name}/{u:.6g}").normal(0.0, 1.0, (cs.power_replicates, K))
+                for r in range(cs.power_replicates):
+                    f = truth[1 if r % 2 == 0 else -1][i][r]
+                    ok = bool(np.all(f > 0.05 * np.median(f_fit[i])))
+                    meta.append((i, "power", e.name, float(u)) if ok else (i, "skip", e.name, float(u)))
+                    if ok:
+                        sims.append(BlindData(f"{n}/power/{e.name}/{u:.6g}/{r}", f * np.exp(sig[i][0] * z[r])))
+    for i, n in enumerate(names):                          # the measured data sets, screened alike
+        sims.append(BlindData(n, T[i]))
+        meta.append((i, "observed", "", 0.0))
+    meta_ok = [m for m in meta if m[1] != "skip"]
+    say(f"calibration: {len(sims) - nd} simulated data sets ({R} noise-only per data set, "
+        f"{len(effects)} effects x {len(cs.power_sizes)} sizes x {cs.power_replicates} with an effect); noise "
+        + ", ".join(f"{n} {sg[0]:.3f} ({sg[1]})" for n, sg in zip(names, sig)))
+    if sims:
+        idx = [m[0] for m in meta_ok]
+        sc = screen(ctx, sims, folds[idx], effects, s, say)
+    out = []
+    for i, n in enumerate(names):
+        rows = [j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "null"]
+        gap_null = sc.gap[rows]
+        delta_null = gap_null[:, :1] - gap_null[:, 1:]
+        mu = delta_null.mean(axis=0)
+        sd = np.maximum(delta_null.std(axis=0, ddof=1) if R > 1 else np.zeros(len(E)), cs.sd_floor)
+        _, _, t_null, _ = maxt(delta_null, mu, sd, np.zeros(0))
+        jo = [j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "observed"][0]
+        cal = Calibration(sig[i][0], sig[i][1], E, delta_null, mu, sd, t_null, gap_null, sc.structure[rows],
+                          pd.DataFrame(), sc.gap[jo], sc.structure[jo])
+        prow = []
+        for e in effects:
+            for u in cs.power_sizes:
+                rr = [j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "power" and m[2] == e.name
+                      and m[3] == float(u)]
+                skipped = sum(1 for m in meta if m[0] == i and m[1] == "skip" and m[2] == e.name and m[3] == float(u))
+                hits = 0
+                for j in rr:
+                    d = cal.decide(sc.gap[j])
+                    hits += int(d["p_adjusted"] <= cs.alpha and d["best"] == e.name and d["delta"][E.index(e.name)] > 0)
+                pw = hits / len(rr) if rr else np.nan
+                prow.append({"effect": e.name, "size_share": u, "theta": e.describe(size_theta(e, u, 1)),
+                             "replicates": len(rr), "skipped_unproducible": skipped, "identified": hits,
+                             "power": pw})
+        cal.power = pd.DataFrame(prow)
+        out.append(cal)
+    return out
+
+
+def power_summary(power: pd.DataFrame, target: float) -> pd.DataFrame:
+    """Per effect: the smallest simulated size identified in >= ``target`` of its replicates, or none."""
+    rows = []
+    for e, g in power.groupby("effect", sort=False):
+        ok = g[(g["replicates"] > 0) & (g["power"] >= target)]
+        sizes = ", ".join(f"{u:g}" for u in g["size_share"])
+        if len(ok):
+            r = ok.sort_values("size_share").iloc[0]
+            rows.append({"effect": e, "min_detectable_share": float(r["size_share"]), "at": r["theta"],
+                         "power_there": float(r["power"]), "sizes_covered": sizes,
+                         "statement": f"detectable from {r['size_share']:g} of its range ({r['theta']})"})
+        else:
+            rows.append({"effect": e, "min_detectable_share": np.nan, "at": "-", "power_there": np.nan,
+                         "sizes_covered": sizes,
+                         "statement": f"not told from noise at any simulated size up to its bound ({sizes})"})
+    return pd.DataFrame(rows)

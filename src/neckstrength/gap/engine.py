@@ -1,0 +1,246 @@
+"""The fitting engine of the gap diagnosis: every (effect combination, parameter) key fitted for many problems.
+
+A *problem* is one data set restricted to its training directions (one per cross-validation fold, and
+optionally one on all directions). Problems of many data sets share each model instance and are fitted together
+(:func:`neckstrength.gap.fit.fit_strengths`), but each has its own targets and loss. Used by the diagnosis
+(:mod:`neckstrength.gap.diagnose`) and by its calibration (:mod:`neckstrength.gap.calibrate`), which fits
+simulated data sets with the same engine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from neckstrength.estimation.discrepancy import data_discrepancy
+from neckstrength.gap.effects import Effect, GapContext, base_instance, compose
+from neckstrength.gap.fit import FitSettings, Simulator, fit_strengths, make_cache, start_point
+from neckstrength.seeds import derive_rng
+
+
+@dataclass(frozen=True)
+class BlindData:
+    """What the diagnosis is given: a name and the measured maximum force (N) per test direction."""
+
+    name: str
+    forces: np.ndarray
+
+
+@dataclass(frozen=True)
+class CalibrationSettings:
+    """The calibrated decision (:mod:`neckstrength.gap.calibrate`).
+
+    ``replicates`` noise-only data sets per data set (parametric bootstrap from its fitted base model; 0 = no
+    calibration: the candidate with the best score is reported, without a p-value); p-values have resolution
+    ``1 / (replicates + 1)``. ``alpha``: level of the decision. ``noise``: 'heldout' (log-normal SD estimated
+    from the held-out residuals) or a number (e.g. from repeat trials). ``power_sizes``: effect sizes (share of
+    the way from neutral to the far bound) at which the power is simulated, ``power_replicates`` data sets per
+    effect and size, ``power_target`` the share identified that counts as detectable. ``strength_spread``: SD of
+    individual log strengths, for the strengths the directions leave undetermined in the simulated truths.
+    ``starts`` / ``max_iter``: fits of the screen (the measured data set and its simulated ones alike)."""
+
+    replicates: int = 39
+    alpha: float = 0.05
+    noise: str | float = "heldout"
+    power_sizes: tuple[float, ...] = (0.25, 0.5, 1.0)
+    power_replicates: int = 5
+    power_target: float = 0.8
+    strength_spread: float = 0.3
+    starts: int = 1
+    max_iter: int = 15
+    sd_floor: float = 1e-3
+
+
+@dataclass(frozen=True)
+class DiagnosisSettings:
+    effects: tuple[str, ...] = ("cocontraction", "cocontraction_groups", "direction_tolerance", "kinematic",
+                                "asymmetry", "finer_groups", "origin_offset", "point_scale", "shoulder_girdle")
+    grid_points: int = 5
+    folds: int = 5
+    pairs_top: int = 3
+    pair_grid_top: int = 1
+    penalty: float = 0.005
+    epsilon: float = 3.0
+    bootstrap: int = 500
+    starts: int = 4
+    start_spread: float = 0.5
+    refine_iter: int = 0
+    refine_starts: int = 1
+    reach_samples: int = 1500
+    reach_iter: int = 8
+    seed: int = 0
+    fit: FitSettings = FitSettings()
+    calibration: CalibrationSettings = CalibrationSettings(replicates=0)
+
+def direction_folds(K: int, folds: int, rng: np.random.Generator) -> np.ndarray:
+    """Fold of each direction: a random permutation dealt round-robin (leave-one-out when folds >= K)."""
+    folds = min(int(folds), K)
+    return rng.permutation(K) % folds
+
+
+def _key(pairs: Sequence[tuple[str, np.ndarray]], registry: dict | None = None) -> tuple:
+    """Canonical key of an effect combination: sorted by name, neutral effects dropped (same model)."""
+    out = []
+    for n, th in pairs:
+        th = tuple(float(x) for x in np.asarray(th, float))
+        if registry is not None and registry[n].is_neutral(np.array(th)):
+            continue
+        out.append((n, th))
+    return tuple(sorted(out))
+
+
+class _Engine:
+    """Fits of every (effect combination, parameter) key for all problems; results cached by key."""
+
+    def __init__(self, ctx: GapContext, data: Sequence[BlindData], s: DiagnosisSettings, folds: np.ndarray,
+                 registry: dict[str, Effect], full: bool = True):
+        """``full``: also the problem on all directions of each data set (fold -1); without it only the
+        cross-validation problems (what a held-out score needs)."""
+        self.ctx, self.s, self.folds, self.registry = ctx, s, folds, registry
+        self.cache = make_cache()
+        self.F = int(folds.max()) + 1          # folds: (data sets x directions)
+        self.nd = len(data)
+        self.names = [d.name for d in data]
+        K = ctx.K
+        T, W, ds, fo = [], [], [], []
+        for i, d in enumerate(data):
+            f = np.asarray(d.forces, float)
+            if f.shape != (K,) or not np.all(np.isfinite(f)) or np.any(f <= 0):
+                raise ValueError(f"data set {d.name}: need {K} positive finite forces")
+            for fold in list(range(self.F)) + ([-1] if full else []):
+                T.append(f)
+                W.append((folds[i] != fold).astype(float) if fold >= 0 else np.ones(K))
+                ds.append(i)
+                fo.append(fold)
+        self.T, self.W = np.array(T), np.array(W)
+        self.pds, self.pfold = np.array(ds), np.array(fo)
+        self.P = len(self.T)
+        self.base_sim = Simulator(ctx, base_instance(ctx), self.cache, s.fit.chunk_size)
+        self.max_rounds = 4
+        self.prior = start_point(self.base_sim, self.T, self.W)
+        self.p = self.prior.shape[1]
+        self.results: dict[tuple, dict] = {}
+        self.n_fits = 0
+
+    def key(self, pairs) -> tuple:
+        return _key(pairs, self.registry)
+
+    def effects_of(self, key: tuple) -> tuple[list[Effect], list[np.ndarray]]:
+        effs = [self.registry[n] for n, _ in key]
+        return effs, [np.array(th) for _, th in key]
+
+    def sim(self, key: tuple) -> Simulator:
+        """A simulator for ``key`` (the base one is kept; others are built per use and dropped, with
+        their basis caches)."""
+        if key == ():
+            return self.base_sim
+        effs, ths = self.effects_of(key)
+        return Simulator(self.ctx, compose(self.ctx, effs, ths), None, self.s.fit.chunk_size)
+
+    def evaluate(self, key: tuple, warm: np.ndarray, mask: np.ndarray | None = None, starts: int | None = None) -> dict:
+        """Fit the problems in ``mask`` for ``key`` with ``starts`` starts (warm start + perturbations; the
+        perturbations of a problem derive from the seed, the key, its data set's name and fold, so they do not
+        depend on which other problems are fitted with it)."""
+        mask = np.ones(self.P, bool) if mask is None else mask
+        old = self.results.get(key)
+        if old is not None:
+            mask = mask & ~old["done"]
+        idx = np.nonzero(mask)[0]
+        if old is None:
+            old = {"phi": np.full((self.P, self.p), np.nan), "loss": np.full(self.P, np.inf),
+                   "sse": np.full(self.P, np.inf), "forces": np.full((self.P, self.ctx.K), np.nan),
+                   "done": np.zeros(self.P, bool)}
+            self.results[key] = old
+        if len(idx) == 0:
+            return old
+        S = max(1, int(self.s.starts if starts is None else starts))
+        phi0 = np.repeat(warm[idx], S, axis=0)
+        pert = np.zeros(phi0.shape)
+        if S > 1:
+            for a, q in enumerate(idx):
+                rng = derive_rng(self.s.seed, f"gap/starts/{key!r}/{self.names[self.pds[q]]}", int(self.pfold[q]) + 1)
+                pert[a * S + 1:(a + 1) * S] = rng.normal(0.0, self.s.start_spread, (S - 1, self.p))
+        phi0 = phi0 + pert
+        rep = lambda a: np.repeat(a[idx], S, axis=0)  # noqa: E731
+        sim = self.sim(key)
+        sim.refresh(sim.muscles(phi0))       # candidate wrenches that are maximal at the start points
+        grad = sim.forces_grad_phi if self.s.fit.exact_gradient else None
+        res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), phi0, rep(self.prior), self.s.fit, grad)
+        for _ in range(self.max_rounds):     # active set of candidate wrenches (direction_tolerance)
+            if not sim.refresh(sim.muscles(res.phi)):
+                break
+            res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), res.phi, rep(self.prior), self.s.fit,
+                                grad)
+        if sim.inst.J > 1:
+            res.forces = sim.run(sim.muscles(res.phi))[0]
+            res.loss, res.sse = _train_loss(res.forces, rep(self.T), rep(self.W), res.phi, rep(self.prior),
+                                            self.s.fit.ridge)
+        self.n_fits += len(phi0)
+        loss = res.loss.reshape(len(idx), S)
+        best = loss.argmin(axis=1)
+        pick = np.arange(len(idx)) * S + best
+        old["phi"][idx] = res.phi[pick]
+        old["loss"][idx] = res.loss[pick]
+        old["sse"][idx] = res.sse[pick]
+        old["forces"][idx] = res.forces[pick]
+        old["done"][idx] = True
+        return old
+
+
+def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: str = "") -> dict[str, list[tuple]]:
+    """Fit every problem at every grid point of every effect (each grid point warm-started from the fits at
+    the nearest point already done); returns the keys per candidate ('none' and each effect)."""
+    say = say or (lambda msg: None)
+    cand_keys: dict[str, list[tuple]] = {"none": [()]}
+    for e in effects:
+        grid = e.grid(eng.s.grid_points)
+        done: list[tuple[np.ndarray, tuple]] = [(e.neutral, ())]
+        span = np.maximum(e.upper - e.lower, 1e-12)
+        for th in grid[1:]:
+            near = min(done, key=lambda t: float(np.linalg.norm((t[0] - th) / span)))
+            key = eng.key([(e.name, th)])
+            eng.evaluate(key, eng.results[near[1]]["phi"])
+            done.append((th, key))
+        cand_keys[e.name] = [k for _, k in done]
+        say(f"{tag}effect {e.name}: {len(grid)} grid points ({eng.n_fits} fits so far)")
+    return cand_keys
+
+
+def cv_predictions(eng: _Engine, keys: list[tuple]) -> np.ndarray:
+    """(data sets x K) held-out predictions of a candidate whose grid is ``keys`` (per problem the key with the
+    lowest training loss)."""
+    chosen = _selection(eng, [keys] * eng.P)
+    return np.array([_cv_predictions(eng, chosen, i) for i in range(eng.nd)]).reshape(eng.nd, eng.ctx.K)
+
+
+def _train_loss(F, T, W, phi, prior, ridge):
+    sse = (W * (F / T - 1.0) ** 2).sum(axis=1)
+    return sse + ridge * ((phi - prior) ** 2).sum(axis=1), sse
+
+
+def _d(forces: np.ndarray, T: np.ndarray, eps: float) -> np.ndarray:
+    return data_discrepancy(forces, T, eps)
+
+
+def _selection(engine: _Engine, keys_per_problem: list[list[tuple]]) -> list[tuple]:
+    """Per problem, the key with the lowest training loss among its candidate keys."""
+    out = []
+    for p, keys in enumerate(keys_per_problem):
+        losses = [engine.results[k]["loss"][p] if k in engine.results else np.inf for k in keys]
+        out.append(keys[int(np.argmin(losses))])
+    return out
+
+
+def _cv_predictions(engine: _Engine, chosen: list[tuple], i: int) -> np.ndarray:
+    """Held-out prediction of every direction of data set ``i`` from its fold's chosen key."""
+    K = engine.ctx.K
+    pred = np.full(K, np.nan)
+    for p in np.nonzero(engine.pds == i)[0]:
+        f = engine.pfold[p]
+        if f < 0:
+            continue
+        sel = engine.folds[i] == f
+        pred[sel] = engine.results[chosen[p]]["forces"][p, sel]
+    return pred

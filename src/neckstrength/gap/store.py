@@ -1,0 +1,62 @@
+"""Per-data-set results of the gap diagnosis on disk, so an interrupted run resumes where it stopped.
+
+A result is stored under a key made of everything it depends on: the diagnosis settings (all of them, incl.
+the seed and the calibration), the model (name, strengths, moment arms), the test directions, the effect
+settings, and the data set's name and forces. A changed setting or input gives a new key, so a stale result is
+never reused; files of other keys are left alone (delete the folder to clean up).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import pickle
+import re
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from neckstrength.gap.effects import GapContext
+from neckstrength.gap.engine import BlindData, DiagnosisSettings
+
+
+def context_fingerprint(ctx: GapContext) -> str:
+    h = hashlib.sha256()
+    for a in (ctx.model.strengths, ctx.model.moment_arms, ctx.model.JT, ctx.head_centre,
+              ctx.directions.select_dtypes("number").to_numpy(float)):
+        h.update(np.ascontiguousarray(np.asarray(a, float)).tobytes())
+    h.update(repr((ctx.model.name, tuple(ctx.model.muscle_names), tuple(ctx.directions["name"]), ctx.emg_groups,
+                   ctx.shoulder_muscles, ctx.tie_sides, sorted((k, sorted(dict(v or {}).items()))
+                                                           for k, v in dict(ctx.settings).items()))).encode())
+    return h.hexdigest()
+
+
+class ResultStore:
+    """``get`` / ``put`` one data set's diagnosis in ``folder`` (pickles, written atomically)."""
+
+    def __init__(self, folder: str | Path, ctx: GapContext, settings: DiagnosisSettings):
+        self.folder = Path(folder)
+        self.base = hashlib.sha256((context_fingerprint(ctx) + repr(settings)).encode()).hexdigest()
+
+    def path(self, data: BlindData) -> Path:
+        h = hashlib.sha256(self.base.encode() + data.name.encode() + np.asarray(data.forces, float).tobytes())
+        safe = re.sub(r"[^A-Za-z0-9_.-]", "_", data.name)[:60]
+        return self.folder / f"{safe}-{h.hexdigest()[:20]}.pkl"
+
+    def get(self, data: BlindData):
+        p = self.path(data)
+        if not p.exists():
+            return None
+        try:
+            with open(p, "rb") as fh:
+                return pickle.load(fh)
+        except (OSError, pickle.UnpicklingError, EOFError):
+            return None
+
+    def put(self, data: BlindData, result) -> None:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=self.folder, suffix=".tmp")
+        with os.fdopen(fd, "wb") as fh:
+            pickle.dump(result, fh)
+        os.replace(tmp, self.path(data))

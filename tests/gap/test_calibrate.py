@@ -1,0 +1,149 @@
+"""Calibrated gap decision (issue 17): noise-only null, remainder test, power per effect, resumable results."""
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from neckstrength.config import build_directions, gap_context, load_config
+from neckstrength.gap import calibrate as cb
+from neckstrength.gap import diagnose as dg
+from neckstrength.gap.benchmark import accuracy_table
+from neckstrength.gap.effects import EFFECTS, base_instance, compose
+from neckstrength.gap.engine import CalibrationSettings
+from neckstrength.gap.fit import FitSettings, Simulator
+from neckstrength.gap.store import ResultStore
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def ctx_p2():
+    c = load_config(ROOT / "config" / "config.yaml")
+    c["data"] = {k: str(ROOT / v) for k, v in c["data"].items()}
+    c["geometry"]["test_point_spec"] = str(ROOT / c["geometry"]["test_point_spec"])
+    return gap_context(c, "p2m7", build_directions(c))
+
+
+def _settings(**cal):
+    return dg.DiagnosisSettings(effects=("cocontraction", "kinematic", "origin_offset"), grid_points=4, folds=7,
+                                pairs_top=0, bootstrap=20, starts=1, reach_samples=0, reach_iter=0,
+                                fit=FitSettings(max_iter=15), seed=1, calibration=CalibrationSettings(**cal))
+
+
+def _data(ctx):
+    rng = np.random.default_rng(4)
+    F = ctx.model.strengths[None] * np.exp(rng.normal(0, 0.2, (1, ctx.model.m)))
+    out = []
+    for name, th in (("kin", ("kinematic", [0.9])), ("tol", ("direction_tolerance", [1.0])), ("ctrl", None)):
+        inst = base_instance(ctx) if th is None else compose(ctx, [EFFECTS[th[0]](ctx)], [np.array(th[1])])
+        f = Simulator(ctx, inst).forces(F)[0]
+        out.append(dg.BlindData(name, f * np.exp(rng.normal(0, 0.01, ctx.K))))
+    return out
+
+
+def test_maxt_adjusted_p_value_counts_null_maxima():
+    t_null = np.array([0.0, 1.0, 2.0, 3.0])              # T of 4 noise-only replicates
+    mu, sd = np.zeros(2), np.ones(2)
+    z, best, t, p = cb.maxt(np.array([[2.5, -1.0], [0.0, 5.0], [-3.0, -3.0]]), mu, sd, t_null)
+    assert list(best) == [0, 1, 0]
+    assert np.allclose(t, [2.5, 5.0, -3.0])
+    assert np.allclose(p, [2 / 5, 1 / 5, 5 / 5])           # (1 + #{T_null >= T}) / (R + 1)
+
+
+def test_plane_structure_is_scale_free_and_sees_a_plane_offset():
+    X = np.array([[1, 0], [1, 0], [0, 1], [0, 1]], float)
+    r = np.array([[0.1, 0.1, -0.1, -0.1], [0.1, -0.1, 0.1, -0.1]])
+    s = cb.plane_structure(r, X)
+    assert np.allclose(s, [1.0, 0.0])
+    assert np.allclose(cb.plane_structure(10 * r, X), s)
+
+
+def test_calibrated_decision_remainder_and_power(ctx_p2):
+    # p2m7, 1% noise given (as from repeat trials), 19 noise-only replicates (p resolution 0.05):
+    # a strong kinematic effect is named with p = 0.05; direction errors (not a candidate here) are not explained
+    # by any candidate; the noise-only control names nothing
+    s = _settings(replicates=19, noise=0.01, power_sizes=(1.0,), power_replicates=2)
+    out = {d.name: d for d in dg.diagnose(ctx_p2, _data(ctx_p2), s)}
+    kin, tol, ctrl = out["kin"].summary, out["tol"].summary, out["ctrl"].summary
+    assert kin["chosen"] == "kinematic" and kin["p_value"] == pytest.approx(1 / 20)
+    assert kin["p_resolution"] == pytest.approx(1 / 20) and kin["noise_source"] == "given"
+    assert tol["chosen"] == "none" and tol["p_value"] > 0.05 and tol["remainder_unexplained"]
+    assert "not explained by any candidate" in tol["remainder"]
+    assert ctrl["chosen"] == "none" and ctrl["p_value"] > 0.05 and not ctrl["remainder_unexplained"]
+    for d in out.values():
+        assert d.summary["p_value"] > 0 and np.isfinite(d.summary["p_value"])
+        pw = d.power
+        assert set(pw["effect"]) == {"cocontraction", "kinematic", "origin_offset"}
+        assert ((pw["identified"] >= 0) & (pw["identified"] <= pw["replicates"])).all()
+        assert len(d.power_summary) == 3 and d.summary["power_statements"]
+        assert {"p_raw", "z", "at_bound"} <= set(d.effects.columns)
+        ok = pw["replicates"] > 0
+        assert np.allclose(pw.loc[ok, "power"], pw.loc[ok, "identified"] / pw.loc[ok, "replicates"])
+        ps = d.power_summary.set_index("effect")
+        for e, g in pw.groupby("effect"):      # detectable iff some simulated size reaches the target
+            assert np.isfinite(ps.loc[e, "min_detectable_share"]) == bool((g["power"] >= 0.8).any())
+
+
+def test_noise_level_is_estimated_from_heldout_residuals_or_given():
+    assert cb.estimate_noise(np.array([0.2, 0.05, np.nan]), "heldout") == (0.05, "heldout")
+    assert cb.estimate_noise(np.array([0.2]), 0.03) == (0.03, "given")
+    with pytest.raises(ValueError, match="heldout"):
+        cb.estimate_noise(np.array([0.2]), "trials")
+
+
+def test_parameters_at_their_bounds_are_flagged(ctx_p2):
+    e = EFFECTS["origin_offset"](ctx_p2)
+    lo, hi = e.lower, e.upper
+    assert dg._at_bounds(e, np.array([hi[0], 0.0])) == ["origin_offset.dx"]
+    assert dg._at_bounds(e, np.array([0.5 * hi[0], lo[1]])) == ["origin_offset.dy"]
+    assert dg._at_bounds(EFFECTS["cocontraction"](ctx_p2), np.array([0.0])) == []   # lower bound = neutral
+
+
+def test_results_are_stored_per_data_set_and_a_rerun_resumes(ctx_p2, tmp_path, monkeypatch):
+    data = _data(ctx_p2)[::2]
+    s = _settings(replicates=0)
+    store = ResultStore(tmp_path, ctx_p2, s)
+    first = dg.diagnose(ctx_p2, data, s, store=store, chunk=1)
+    assert len(list(tmp_path.glob("*.pkl"))) == 2
+
+    def boom(*a, **k):
+        raise AssertionError("refitted a stored data set")
+
+    monkeypatch.setattr(dg, "_diagnose_batch", boom)
+    again = dg.diagnose(ctx_p2, data, s, store=ResultStore(tmp_path, ctx_p2, s))
+    for a, b in zip(first, again):
+        pd.testing.assert_frame_equal(a.effects, b.effects)
+    s2 = _settings(replicates=0, alpha=0.01)                   # a changed setting: a new key, nothing reused
+    with pytest.raises(AssertionError, match="refitted"):
+        dg.diagnose(ctx_p2, data, s2, store=ResultStore(tmp_path, ctx_p2, s2))
+
+
+def test_accuracy_table_splits_by_detectability():
+    pc = pd.DataFrame({"injected": ["none", "none", "a", "a", "b"], "identified": ["none", "a", "a", "none", "b"],
+                       "correct": [True, False, True, False, True], "detectable": [False, False, True, True, False],
+                       "tier": ["base"] * 5, "size_share": [0.0, 0.0, 0.9, 0.5, 0.3]})
+    t = accuracy_table(pc).set_index("group")
+    assert t.loc["controls (no effect): correct = none", "share_correct"] == 0.5
+    assert t.loc["effect cases, detectable by the case's power analysis", "share_correct"] == 0.5
+    assert t.loc["effect cases, not detectable by the power analysis", "cases"] == 1
+
+
+def test_benchmark_generator_tiers_noise_range_and_sizes(ctx_p2):
+    from neckstrength.gap.benchmark import BenchmarkSettings, generate_cases
+
+    bs = BenchmarkSettings(effects=("cocontraction", "kinematic"), replicates=1, controls=1, mismatch_replicates=1,
+                           noise_rel=(0.03, 0.08), clear_size=(0.2, 1.0))
+    cases = generate_cases(ctx_p2, bs, np.random.default_rng(3))
+    assert sorted((c.label, c.tier) for c in cases) == [("cocontraction", "base"), ("cocontraction", "mismatch"),
+                                                        ("kinematic", "base"), ("kinematic", "mismatch"),
+                                                        ("none", "base")]
+    for c in cases:
+        assert 0.03 <= c.noise <= 0.08
+        assert (c.size_share == 0.0) if c.label == "none" else (0.2 <= c.size_share <= 1.0)
+        # the mismatch tier's truth has finer control too: its clean forces differ from the injected effect alone
+        e = EFFECTS[c.injected[0]](ctx_p2) if c.injected else None
+        inst = base_instance(ctx_p2) if e is None else compose(ctx_p2, [e], [c.theta[e.name]])
+        alone = Simulator(ctx_p2, inst).forces(c.f_true[None])[0]
+        assert np.allclose(alone, c.forces_clean) == (c.tier == "base")
