@@ -279,7 +279,8 @@ def final_outputs():
     out += expand("results/strength/{model}/baseline.csv", model=ALL_MODELS)
     out += chapter4_outputs()
     out += chapter5_outputs()
-    out += gap_outputs()
+    if config["gap"]["in_all"]:
+        out += gap_outputs()
     out += chapter6_outputs()
     out += chapter3_outputs()
     out += [f"results/trials/{t}/quality_report.md" for t in config.get("trials", {}).get("datasets", {})]

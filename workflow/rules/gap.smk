@@ -154,3 +154,8 @@ rule gap_benchmark:
         "../envs/neckstrength.yaml"
     script:
         "../scripts/gap_benchmark.py"
+
+
+rule gap:
+    input:
+        gap_outputs(),
