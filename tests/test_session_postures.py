@@ -32,7 +32,7 @@ LABELS = [d if p == "neutral" else f"{p}:{d}" for p in POSTURES for d in DIRS]
 
 
 def _opts(tmp_path, **kw):
-    base = dict(model="p2m7", config=CFG, n_candidates=300, cache=str(tmp_path / "cache"))
+    base = {"model": "p2m7", "config": CFG, "n_candidates": 300, "cache": str(tmp_path / "cache")}
     base.update(kw)
     return SessionOptions(**base)
 
@@ -178,7 +178,7 @@ def test_replay_posture_column_errors(tmp_path):
 
 def test_change_cost_keeps_the_posture(tmp_path):
     """A cost larger than any gain: after a neutral test the proposal stays in neutral; without cost it leaves."""
-    kw = dict(postures="flex20,ext20")
+    kw = {"postures": "flex20,ext20"}
     free = Session.start(tmp_path / "f", _opts(tmp_path, **kw), progress=_quiet)
     dear = Session.start(tmp_path / "d", _opts(tmp_path, posture_change_cost=100.0, **kw), progress=_quiet)
     for s in (free, dear):
@@ -186,7 +186,9 @@ def test_change_cost_keeps_the_posture(tmp_path):
     assert free.split(free.choice(free.proposal()))[0] != "neutral"     # free: the best gain is in a posture
     assert dear.split(dear.choice(dear.proposal()))[0] == "neutral"
     t = dear.proposal().table()
-    assert "posture change from" not in dear.render().split("\n")[1]
+    screen = dear.render()
+    assert "posture change from" not in screen.split("\n")[1]
+    assert "minus 100 nats for a posture change" in screen and "- 100 posture change)" in screen
     assert t["score"].max() > -50                                        # a neutral test scores its gain
     with pytest.raises(ValueError, match="thesis's scheme .* has no posture model"):
         Session.start(tmp_path / "t", _opts(tmp_path, criterion="thesis", **kw), progress=_quiet)

@@ -626,7 +626,8 @@ class Session:
             self.entries.append(rec)
             act = "" if not e.activations else " with activations " + ", ".join(
                 f"{k} {v:g}" for k, v in e.activations.items())
-            return f"recorded {e.direction}: {e.force:g} N{act}"
+            what = ("posture {} / direction {}".format(*self.split(e.direction)) if self.postures else e.direction)
+            return f"recorded {what}: {e.force:g} N{act}"
         if e.kind == "skip":
             rec = {"action": "skip", "direction": e.direction}
             self.log.append(self._stamp(rec))
@@ -739,6 +740,13 @@ class Session:
             else:
                 lines.append(f"Expected entropy reduction of each remaining direction (Eq. 6.6; score {g}; nats):")
             marks = {d: "(skipped)" for d in self.skipped}
+            cost = self.opts.posture_change_cost
+            if self.postures and cost > 0:        # the bars are gain - cost for a pair in another posture
+                lines[-1] = lines[-1][:-1] + f"; minus {cost:g} nats for a posture change):"
+                now = self.state.post.current_posture
+                for d, v in zip(t["direction"], t["score"]):
+                    if self.split(d)[0] != now:
+                        marks[d] = (marks.get(d, "") + f" (gain {v + cost:.3f} - {cost:g} posture change)").strip()
             order = t.sort_values("score", ascending=False, kind="stable")
             lines.append(bar_chart(list(order["direction"]), list(order["score"]), mark=prop, marks=marks))
         e = self.estimate()
