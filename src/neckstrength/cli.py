@@ -248,7 +248,8 @@ def _cmd_session(args) -> int:
         opts = SessionOptions(model=args.model, participant=args.participant,
                               priorities=parse_priorities(args.priority), config=args.config,
                               n_candidates=args.n_candidates, prior_scale=args.prior_scale,
-                              gain_frac=args.stop_frac, cache=args.cache, seed=args.seed, criterion=args.criterion)
+                              gain_frac=args.stop_frac, cache=args.cache, seed=args.seed, criterion=args.criterion,
+                              postures=args.postures, posture_change_cost=args.posture_change_cost)
         s = Session.start(args.out, opts)
         return run_interactive(s) if args.action == "start" else replay_csv(s, args.csv)
     except (InputError, ValueError, FileExistsError, FileNotFoundError) as exc:
@@ -349,6 +350,13 @@ def build_parser() -> argparse.ArgumentParser:
                        help="next-test criterion: joint_eig or marginal_entropy on the joint posterior, or thesis "
                             "(Algorithms 7-9 on per-muscle PDFs); default: config clinician.session.<model> "
                             "(s3m24: joint_eig), else thesis")
+        a.add_argument("--postures", default=None, metavar="P1,P2,...|all",
+                       help="tests in these neck postures as well as neutral (config postures.postures; 'all' = every "
+                            "one): the joint posterior proposes a (posture, direction) test; default: neutral only "
+                            "(docs/session.md)")
+        a.add_argument("--posture-change-cost", type=float, default=0.0, metavar="NATS",
+                       help="with --postures: nats charged by the criterion for a test in another posture than the "
+                            "last one (default 0)")
     a = ss.add_parser("resume", help="resume a session from its log")
     a.add_argument("--out", required=True)
     d.set_defaults(func=_cmd_session)

@@ -70,6 +70,8 @@ HELP = """Commands:
   <force>                          force in N for the proposed direction, e.g. 142 or 142 N
   <force> act=MUSCLE:VALUE,...     the same with EMG activations in [0, 1], e.g. 142 act=TS-B:0.4,TS-E:0.7
   measure <direction> <force> [act=MUSCLE:VALUE,...]   a force for another (untested) direction
+  measure <posture>:<direction> <force> [act=...]      sessions with --postures: a test in that posture, e.g.
+                                   measure flex20:back 183 (a bare direction is taken in the proposed posture)
   skip                             do not test the proposed direction now (it is proposed no more)
   undo                             remove the last measurement or skip
   stop                             finish: write summary.csv and summary.png
@@ -169,9 +171,51 @@ def _check_direction(name: str, directions: Sequence[str], tested: Sequence[str]
     return name
 
 
+def check_posture(posture: str, postures: Sequence[str], where: str = "") -> str:
+    """A posture name of this session (case-insensitive), or :class:`InputError` naming the field and the allowed
+    values."""
+    if posture in postures:
+        return posture
+    low = {p.lower(): p for p in postures}
+    if posture.lower() in low:
+        return low[posture.lower()]
+    close = difflib.get_close_matches(posture, list(postures), n=1)
+    hint = f" (did you mean {close[0]}?)" if close else ""
+    raise InputError(f"unknown posture '{posture}'{hint}{where}; field posture must be one of: {', '.join(postures)}")
+
+
+def _check_test(name: str, directions: Sequence[str], tested: Sequence[str], postures: Sequence[str] | None,
+                default_posture: str | None) -> str:
+    """A test of this session from ``posture:direction`` or a bare direction (in ``default_posture``)."""
+    from neckstrength.postures.model import SEPARATOR, pair_label
+
+    if postures is None:
+        if SEPARATOR in name and name not in directions:
+            raise InputError(f"'{name}' names a posture, but this session tests neutral only (start a session with "
+                             f"--postures to test other postures)")
+        return _check_direction(name, directions, tested)
+    if SEPARATOR in name:
+        p, d = name.split(SEPARATOR, 1)
+        p = check_posture(p.strip(), postures, f" in '{name}' (posture:direction)")
+    else:
+        p, d = default_posture or "neutral", name
+    base = list(dict.fromkeys(x.split(SEPARATOR, 1)[-1] for x in directions))
+    d = _check_direction(d.strip(), base, [])
+    label = pair_label(p, d)
+    if label in tested:
+        raise InputError(f"test '{label}' (posture {p}, direction {d}) has already been tested (each test is done "
+                         f"once; 'undo' removes the last entry)")
+    return label
+
+
 def parse_entry(line: str, proposed: str | None, directions: Sequence[str], tested: Sequence[str],
-                muscles: Sequence[str]) -> Entry:
-    """One prompt line -> :class:`Entry`; :class:`InputError` (with the message to show) when invalid."""
+                muscles: Sequence[str], postures: Sequence[str] | None = None,
+                default_posture: str | None = None) -> Entry:
+    """One prompt line -> :class:`Entry`; :class:`InputError` (with the message to show) when invalid.
+
+    With ``postures`` (a session over (posture, direction) tests, ``directions`` = their labels
+    ``posture:direction``) ``measure`` takes ``POSTURE:DIRECTION`` or a bare direction, which is taken in
+    ``default_posture`` (the proposed test's posture)."""
     t = line.strip()
     if not t:
         raise InputError("empty input: enter a force in N, or a command (help)")
@@ -189,12 +233,13 @@ def parse_entry(line: str, proposed: str | None, directions: Sequence[str], test
         parts = rest.split(None, 1)
         if not parts:
             raise InputError("measure needs a direction and a force: measure <direction> <force> [act=...]")
-        d = _check_direction(parts[0], directions, tested)
+        d = _check_test(parts[0], directions, tested, postures, default_posture)
         if len(parts) < 2:
             raise InputError(f"measure {d}: the force is missing (measure {d} <force in N>)")
         force_txt, act = _split_act(parts[1])
         return Entry("measure", d, parse_force(force_txt), parse_activations(act, muscles) if act else None)
-    if w in [d.lower() for d in directions] and rest.strip():
+    bare = [d.lower() for d in directions] + [d.split(":", 1)[-1].lower() for d in directions]
+    if (w in bare or (postures is not None and ":" in w)) and rest.strip():
         raise InputError(f"to measure another direction write: measure {word} {rest.strip()}")
     # a force (with optional activations) for the proposed direction
     force_txt, act = _split_act(t)
@@ -322,6 +367,31 @@ class SessionOptions:
     seed: int | None = None                             # None = config seed
     criterion: str | None = None                        # joint_eig / marginal_entropy (joint posterior) or thesis
                                                         # (Algorithms 7-9); None = config clinician.session.<model>
+    postures: list | str | None = None                  # tests in these postures (issue 20; 'all' = config
+                                                        # postures.postures); None = neutral only (the thesis's tests)
+    posture_change_cost: float = 0.0                    # nats charged per posture change by the criterion
+
+
+def resolve_postures(spec: str | Sequence[str] | None, known: Sequence[str]) -> list[str] | None:
+    """``--postures`` -> the session's postures, neutral first; None for neutral only (the default session).
+    ``spec``: a comma-separated string or a list; ``'all'`` = every posture of ``known`` (config postures.postures)."""
+    if spec is None:
+        return None
+    items = [x.strip() for x in (spec.split(",") if isinstance(spec, str) else spec)]
+    items = [x for x in items if x]
+    if not items:
+        raise ValueError(f"--postures: no posture given; allowed: all, {', '.join(known)}")
+    if items == ["all"]:
+        items = list(known)
+    out = ["neutral"]
+    for x in items:
+        if x not in known:
+            close = difflib.get_close_matches(x, list(known), n=1)
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            raise ValueError(f"--postures: unknown posture '{x}'{hint}; allowed: all, {', '.join(known)}")
+        if x not in out:
+            out.append(x)
+    return None if out == ["neutral"] else out
 
 
 class Session:
@@ -345,16 +415,30 @@ class Session:
         cfg = load_config(opts.config)
         self.cfg = cfg
         defaults = session_defaults(cfg, opts.model)
+        postures = resolve_postures(opts.postures, list(cfg.get("postures", {}).get("postures", ["neutral"])))
+        cost = float(opts.posture_change_cost)
+        if not np.isfinite(cost) or cost < 0:
+            raise ValueError(f"--posture-change-cost: {opts.posture_change_cost!r} must be >= 0 (nats)")
+        if cost > 0 and postures is None:
+            raise ValueError("--posture-change-cost needs --postures (a session in neutral only never changes posture)")
         crit = opts.criterion or defaults.get("criterion", "thesis")
         if crit not in CRITERIA:
             raise ValueError(f"unknown criterion {crit!r}; known: {', '.join(CRITERIA)}")
+        if postures is not None and crit == "thesis":
+            if opts.criterion == "thesis":
+                raise ValueError("--postures needs the joint posterior (--criterion joint_eig or marginal_entropy): "
+                                 "the thesis's scheme (Algorithms 7-9) has no posture model")
+            crit = "joint_eig"
         if opts.n_candidates is None and crit != "thesis" and "n_candidates" in defaults:
             opts = replace(opts, n_candidates=int(defaults["n_candidates"]))
-        self.opts = opts = replace(opts, criterion=crit)        # resolved: the header fixes the session's numbers
+        # resolved: the header fixes the session's numbers
+        self.opts = opts = replace(opts, criterion=crit, postures=postures, posture_change_cost=cost)
+        self.postures = postures
         self.criterion = crit
         self.joint = crit != "thesis"
         self.deficit = deficit_definition(cfg)
-        self.model = model_from_config(full_model_from_config(cfg), cfg, opts.model)
+        full = full_model_from_config(cfg)
+        self.model = model_from_config(full, cfg, opts.model)
         self.muscles = list(self.model.muscle_names)
         unknown = set(opts.priorities) - set(self.muscles)
         if unknown:
@@ -370,7 +454,20 @@ class Session:
         self.U = U
         self.dirtable = d
         self.directions = list(d["name"])
+        self.base_directions = list(self.directions)
         self.push = where_to_push(d, cfg.get("geometry", {}).get("test_point_spec"))
+        self.force_scale = d["force_scale"].to_numpy(float)
+        self.pset = None
+        if postures is not None:                # tests = (posture, direction) pairs, labelled posture:direction
+            from neckstrength.postures import build_posture_set, load_posture_tables, pair_label
+
+            tables = load_posture_tables(cfg["data"]["model_dir"], postures)
+            self.pset = build_posture_set(full, self.model, tables, postures,
+                                          cfg.get("postures", {}).get("force_length", "relative"))
+            self.test_postures = [p for p in postures for _ in self.base_directions]
+            self.directions = [pair_label(p, n) for p in postures for n in self.base_directions]
+            self.U = np.vstack([U] * len(postures))
+            self.force_scale = np.tile(self.force_scale, len(postures))
         self.gamma = (np.array([float(opts.priorities.get(n, 0.0)) for n in self.muscles])
                       if opts.priorities else None)
         self.gain_frac = (float(opts.gain_frac) if opts.gain_frac is not None
@@ -385,7 +482,9 @@ class Session:
         self._seq = 0
         if self.joint:                         # the joint posterior: candidates drawn and solved at start (N x K)
             self.sim = None
-            progress(f"joint posterior: {s.n_candidates} candidates x {len(self.directions)} directions "
+            what = (f"tests ({len(postures)} postures x {len(self.base_directions)} directions, change cost "
+                    f"{cost:g} nats)" if postures else "directions")
+            progress(f"joint posterior: {s.n_candidates} candidates x {len(self.directions)} {what} "
                      f"({self.model.name}), criterion {crit} ...")
             t0 = time.time()
             self.state = self._joint_state()
@@ -404,9 +503,18 @@ class Session:
     def _joint_state(self):
         from neckstrength.sequential.joint_state import JointState
 
-        return JointState(self.model, self.directions, self.U, self.dirtable["force_scale"].to_numpy(float), self.f0,
-                          self.settings, derive_rng(self.seed, f"session/{self.opts.model}/joint"), self.criterion,
-                          self.deficit)
+        rng = derive_rng(self.seed, f"session/{self.opts.model}/joint")
+        if self.pset is None:
+            return JointState(self.model, self.directions, self.U, self.force_scale, self.f0, self.settings, rng,
+                              self.criterion, self.deficit)
+        from neckstrength.postures.sequential import PostureJointPosterior
+
+        post = PostureJointPosterior(self.pset, self.directions, self.U, self.force_scale, self.test_postures,
+                                     self.f0, self.settings, rng, change_cost=self.opts.posture_change_cost)
+        return JointState(self.model, self.directions, self.U, self.force_scale, self.f0, self.settings, rng,
+                          self.criterion, self.deficit, posterior=post,
+                          key_extra="postures=" + ",".join(self.postures) + f";cost={self.opts.posture_change_cost!r}")
+
 
     def _push(self, step) -> None:
         if self.joint:
@@ -518,7 +626,8 @@ class Session:
             self.entries.append(rec)
             act = "" if not e.activations else " with activations " + ", ".join(
                 f"{k} {v:g}" for k, v in e.activations.items())
-            return f"recorded {e.direction}: {e.force:g} N{act}"
+            what = ("posture {} / direction {}".format(*self.split(e.direction)) if self.postures else e.direction)
+            return f"recorded {what}: {e.force:g} N{act}"
         if e.kind == "skip":
             rec = {"action": "skip", "direction": e.direction}
             self.log.append(self._stamp(rec))
@@ -606,10 +715,18 @@ class Session:
         p = self.proposal()
         prop = self.choice(p)
         n_t = len(self.state.tested)
+        what = "tests (posture:direction)" if self.postures else "directions"
         lines = [f"=== step {n_t + 1} · participant {self.opts.participant} · model {self.model.name} · "
-                 f"{n_t} of {len(self.directions)} directions tested"
+                 f"{n_t} of {len(self.directions)} {what} tested"
                  + (f" ({', '.join(self.state.tested)})" if n_t else "") + " ==="]
-        if prop is not None:
+        if prop is not None and self.postures:
+            post, dname = self.split(prop)
+            now = self.state.post.current_posture
+            change = f"; posture change from {now}" if post != now else ""
+            cost = (f", charged {self.opts.posture_change_cost:g} nats" if change and self.opts.posture_change_cost
+                    else "")
+            lines.append(f"Proposed: posture {post} / direction {dname}{change}{cost}  -- {self.push.get(dname, '')}")
+        elif prop is not None:
             lines.append(f"Proposed: {prop}  -- {self.push.get(prop, '')}")
         if p is not None:
             t = p.table()
@@ -623,13 +740,21 @@ class Session:
             else:
                 lines.append(f"Expected entropy reduction of each remaining direction (Eq. 6.6; score {g}; nats):")
             marks = {d: "(skipped)" for d in self.skipped}
+            cost = self.opts.posture_change_cost
+            if self.postures and cost > 0:        # the bars are gain - cost for a pair in another posture
+                lines[-1] = lines[-1][:-1] + f"; minus {cost:g} nats for a posture change):"
+                now = self.state.post.current_posture
+                for d, v in zip(t["direction"], t["score"]):
+                    if self.split(d)[0] != now:
+                        marks[d] = (marks.get(d, "") + f" (gain {v + cost:.3f} - {cost:g} posture change)").strip()
             order = t.sort_values("score", ascending=False, kind="stable")
             lines.append(bar_chart(list(order["direction"]), list(order["score"]), mark=prop, marks=marks))
         e = self.estimate()
         lines.append("Current estimate (posterior mean ± sd, N; prior in brackets). The sd assumes the model fits every "
                      "direction within the kernel width; on real participants it does not (docs/calibration.md): read it "
                      "as a lower bound of the uncertainty, not a calibrated interval"
-                     + (" (on s3m24 it is not calibrated even on simulated data at session sizes)" if self.joint
+                     + (" (tests in several postures: not checked by simulation, heuristic)" if self.postures
+                        else " (on s3m24 it is not calibrated even on simulated data at session sizes)" if self.joint
                         else "") + ":")
         lw = max(len(m) for m in self.muscles)
         for r in e.to_dict("records"):
@@ -669,6 +794,19 @@ class Session:
                 f"{more}{arrows}",
                 f"  ({how}. NOT a calibrated probability: checked only on simulated participants of this model "
                 f"(how often it finds a deficit: docs/clinician.md), never under model misfit)"]
+
+    def split(self, label: str) -> tuple[str, str]:
+        """(posture, direction) of a test label ('neutral' for a plain direction)."""
+        from neckstrength.postures.model import split_label
+
+        return split_label(label)
+
+    def default_posture(self) -> str:
+        """The posture a bare direction at the prompt is taken in: the proposed test's, else the last test's."""
+        if not self.postures:
+            return "neutral"
+        prop = self.choice(self.proposal())
+        return self.split(prop)[0] if prop else self.state.post.current_posture
 
     def prompt(self) -> str:
         prop = self.choice(self.proposal())
@@ -720,6 +858,10 @@ class Session:
         mdf = pd.DataFrame({"direction": [r["direction"] for r in meas], "force_N": [r["force_N"] for r in meas],
                             "activations": [",".join(f"{k}:{v:g}" for k, v in (r.get("activations") or {}).items())
                                             for r in meas]})
+        if self.postures:                       # posture column, direction without the posture prefix
+            pairs = [self.split(r["direction"]) for r in meas]
+            mdf["direction"] = [d for _, d in pairs]
+            mdf.insert(0, "posture", [p for p, _ in pairs])
         atomic_write_csv(mdf, self.out / "measurements.csv", [f"measurements of session {self.out.name} "
                                                               "(replay: neckstrength session replay --csv ...)"])
         png = self.out / "summary.png"
@@ -774,7 +916,7 @@ def run_interactive(session: Session, input_fn: Callable[[str], str] = input, ou
             return 3
         try:
             e = parse_entry(line, session.choice(session.proposal()), session.directions, session.state.tested,
-                            session.muscles)
+                            session.muscles, session.postures, session.default_posture())
             if e.kind == "help":
                 say(HELP.format(max=MAX_PLAUSIBLE_FORCE_N))
                 continue
@@ -802,33 +944,52 @@ def read_measurements_csv(path: str | Path) -> pd.DataFrame:
     df = pd.read_csv(path, comment="#", dtype=str, keep_default_na=False)
     miss = {"direction", "force_N"} - set(df.columns)
     if miss:
-        raise InputError(f"{path}: missing columns {sorted(miss)} (needs direction, force_N[, activations])")
+        raise InputError(f"{path}: missing columns {sorted(miss)} (needs direction, force_N[, activations, posture])")
     return df
 
 
 def replay_csv(session: Session, csv: str | Path, out=sys.stdout) -> int:
-    """Drive ``session`` from a CSV of measurements (direction, force_N[, activations]) through the same
-    validation, log and update as the prompt; then stop and write the summary."""
+    """Drive ``session`` from a CSV of measurements (direction, force_N[, activations, posture]) through the same
+    validation, log and update as the prompt; then stop and write the summary. ``posture`` (optional; empty =
+    neutral) names the posture of the row's test; ``direction`` may also be written ``posture:direction``."""
     df = read_measurements_csv(csv)
     entries, tested = [], list(session.state.tested)
     for k, r in enumerate(df.to_dict("records"), start=2):      # validate every row before logging any
         act = (r.get("activations") or "").strip()
-        line = f"measure {r['direction'].strip()} {r['force_N'].strip()}" + (f" act={act}" if act else "")
+        name = r["direction"].strip()
+        post = (r.get("posture") or "").strip()
         try:
-            e = parse_entry(line, None, session.directions, tested, session.muscles)
+            if post and session.postures is None and post != "neutral":
+                raise InputError(f"field posture: '{post}', but this session tests neutral only (start it with "
+                                 f"--postures to replay tests in other postures)")
+            if post and session.postures is not None:
+                post = check_posture(post, session.postures)
+                if ":" in name and session.split(name)[0] != post:
+                    raise InputError(f"field posture '{post}' contradicts the posture in field direction '{name}'")
+                name = name.split(":", 1)[-1]
+            line = f"measure {name} {r['force_N'].strip()}" + (f" act={act}" if act else "")
+            e = parse_entry(line, None, session.directions, tested, session.muscles, session.postures,
+                            post or "neutral")
         except InputError as exc:
             raise InputError(f"{csv}, row {k}: {exc}") from None
         entries.append(e)
         tested.append(e.direction)
     for e in entries:
         p = session.proposal()
-        print(f"step {len(session.state.tested) + 1}: proposed {session.choice(p)}; "
+        print(f"step {len(session.state.tested) + 1}: proposed {_proposed_text(session, session.choice(p))}; "
               f"{session.accept(e)}", file=out, flush=True)
     session.accept(Entry("stop"))
     csvp, png = session.write_summary()
     print(_final_table(session), file=out)
     print(f"wrote {csvp} and {png}", file=out, flush=True)
     return 0
+
+
+def _proposed_text(session: Session, label: str | None) -> str:
+    if label is None or not session.postures:
+        return str(label)
+    p, d = session.split(label)
+    return f"posture {p} / direction {d}"
 
 
 def parse_priorities(items: Sequence[str] | None) -> dict:

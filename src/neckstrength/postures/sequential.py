@@ -37,7 +37,7 @@ class PostureJointPosterior(JointPosterior):
         self.pset = pset
         self.test_postures = list(postures)
         self.change_cost = float(change_cost)
-        self.current_posture = start_posture
+        self.start_posture = start_posture
         super().__init__(pset.neutral, labels, U, force_scale, f0, settings, rng, **kw)
 
     def _wrenches(self, F: np.ndarray) -> np.ndarray:
@@ -57,10 +57,11 @@ class PostureJointPosterior(JointPosterior):
         self.n_lps += w.size
         return np.where(st[:, 0] == _OPT, w[:, 0], 0.0)
 
-    def update(self, direction: str, force: float, activations=None) -> pd.DataFrame:
-        est = super().update(direction, force, activations)
-        self.current_posture = self.test_postures[self.directions.index(direction)]
-        return est
+    @property
+    def current_posture(self) -> str:
+        """The posture of the last test (``start_posture`` before any): derived from ``tests``, so restoring the
+        tests (an undo) restores it too."""
+        return self.test_postures[self.tests[-1]["i"]] if self.tests else self.start_posture
 
     def propose(self, criterion: str, rng: np.random.Generator) -> tuple[str, pd.DataFrame]:
         """As :meth:`JointPosterior.propose`, with columns ``posture``, ``gain`` (the criterion) and ``score`` =

@@ -60,16 +60,20 @@ class JointState:
 
     def __init__(self, model: ReducedModel, directions: Sequence[str], U: np.ndarray, force_scale: np.ndarray,
                  f0: np.ndarray, settings: JointSettings, rng: np.random.Generator, criterion: str = "joint_eig",
-                 deficit: DeficitDefinition | None = None, cache=None):
+                 deficit: DeficitDefinition | None = None, cache=None, posterior: JointPosterior | None = None,
+                 key_extra: str = ""):
         if criterion not in JOINT_CRITERIA:
             raise ValueError(f"criterion {criterion!r} is not one of the joint posterior's: {JOINT_CRITERIA}")
         self.model = model
         self.criterion = criterion
         self.force_scale = np.asarray(force_scale, float)
-        self.post = JointPosterior(model, directions, U, force_scale, f0, settings, rng, cache=cache)
+        # ``posterior``: a ready JointPosterior over the same tests (e.g. the posture one, issue 20)
+        self.post = (JointPosterior(model, directions, U, force_scale, f0, settings, rng, cache=cache)
+                     if posterior is None else posterior)
         self.deficit = deficit if deficit is not None and deficit.applies(model.muscle_names) else None
         self.key = hashlib.sha256(np.ascontiguousarray(self.post.F).tobytes()
-                                  + np.ascontiguousarray(U, float).tobytes()).hexdigest()[:16]
+                                  + np.ascontiguousarray(U, float).tobytes()
+                                  + key_extra.encode()).hexdigest()[:16]
         self._snaps: list[dict] = []
         self.history: list[dict] = [self._summary(None)]
 
@@ -147,6 +151,7 @@ class JointState:
         dS = df[muscles].to_numpy(float) if self.criterion == "marginal_entropy" else None
         score = df["score"].to_numpy(float)
         if dS is not None and gamma is not None:
-            score = (dS * np.asarray(gamma, float)).sum(axis=1) / len(muscles)
+            charge = (df["gain"] - df["score"]).to_numpy(float) if "gain" in df.columns else 0.0   # posture change
+            score = (dS * np.asarray(gamma, float)).sum(axis=1) / len(muscles) - charge
         dirs = list(df["direction"])
         return JointProposal(dirs, muscles, score, dirs[int(np.argmax(score))], self.criterion, dS)
