@@ -40,14 +40,9 @@ class PostureJointPosterior(JointPosterior):
         self.start_posture = start_posture
         super().__init__(pset.neutral, labels, U, force_scale, f0, settings, rng, **kw)
 
-    def _wrenches(self, F: np.ndarray) -> np.ndarray:
+    def _solve_all(self, F: np.ndarray):
         w, _, st = self.pset.wrenches(F, self.U, self.test_postures, cache=self.cache, n_threads=self.n_threads)
-        self.n_lps += w.size
-        W = np.where(st == _OPT, w, 0.0)
-        for t in self.tests:
-            if t["bounds"] is not None:
-                W[:, t["i"]] = self._bounded(F, t["i"], t["bounds"])
-        return W
+        return w, st
 
     def _bounded(self, F: np.ndarray, i: int, bounds) -> np.ndarray:
         lb, ub = bounds

@@ -143,9 +143,13 @@ class JointPosterior:
         return np.where(np.all(F > 0, axis=1), (-0.5 * z ** 2 + c).sum(axis=1), -np.inf)
 
     # -- wrenches
+    def _solve_all(self, F: np.ndarray):
+        """Max wrench of every candidate in every test (no activation bounds): w, status."""
+        w, _, st = solve(self.model, F, self.U, return_alpha=False, cache=self.cache, n_threads=self.n_threads)
+        return w, st
+
     def _wrenches(self, F: np.ndarray) -> np.ndarray:
-        w, _, st = solve(self.model, F, self.U, return_alpha=False, cache=self.cache,
-                                    n_threads=self.n_threads)
+        w, st = self._solve_all(F)
         self.n_lps += w.size
         W = np.where(st == _OPT, w, 0.0)
         for t in self.tests:

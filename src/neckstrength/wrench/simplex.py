@@ -97,6 +97,22 @@ def _column(AT, j, out):
         out[j - mp1] = -1.0
 
 
+@njit(cache=True, nogil=True)     # no fastmath: make_basis must round as the numpy reference does
+def _conditioned(B, Binv, n, max_cond):
+    """Whether the 1-norm condition estimate ||B||_1 ||B^-1||_1 is finite and at most ``max_cond``."""
+    nB = 0.0
+    nI = 0.0
+    for k in range(n):
+        s1 = 0.0
+        s2 = 0.0
+        for i in range(n):
+            s1 += abs(B[i, k])
+            s2 += abs(Binv[i, k])
+        nB = max(nB, s1)
+        nI = max(nI, s2)
+    return np.isfinite(nI) and nB * nI <= max_cond
+
+
 @njit(cache=True, nogil=True, fastmath=_FM)
 def _basis_matrix(AT, basic, B):
     mp1, n = AT.shape
@@ -125,17 +141,7 @@ def _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_t
     mp1, n = AT.shape
     m = mp1 - 1
     _basis_matrix(AT, basic, B)
-    nB = 0.0
-    nI = 0.0
-    for k in range(n):
-        s1 = 0.0
-        s2 = 0.0
-        for i in range(n):
-            s1 += abs(B[i, k])
-            s2 += abs(Binv[i, k])
-        nB = max(nB, s1)
-        nI = max(nI, s2)
-    if not np.isfinite(nI) or nB * nI > max_cond:
+    if not _conditioned(B, Binv, n, max_cond):
         return False, 0.0
     # dual: B^T y = c_B (maximisation, c = e_w); reduced costs d = c - y A
     for i in range(n):
@@ -547,17 +553,7 @@ def make_basis(A, lb, ub, Acol1, fscale, wscale, Rscale, b, bcols, brows, col, f
     M = np.empty((n, n))
     if not _invert(B, Binv, M):
         return False, 0, False
-    nB = 0.0
-    nI = 0.0
-    for k in range(n):
-        s1 = 0.0
-        s2 = 0.0
-        for i in range(n):
-            s1 += abs(B[i, k])
-            s2 += abs(Binv[i, k])
-        nB = max(nB, s1)
-        nI = max(nI, s2)
-    if not np.isfinite(nI) or nB * nI > max_cond:
+    if not _conditioned(B, Binv, n, max_cond):
         return False, 0, False
     y = np.zeros(n)
     for k in range(nb):
