@@ -165,11 +165,14 @@ class Simulator:
         Rm = self.model.moment_arms                              # (n, m')
         b = (self.model.JT @ self.U[sel].T).T                    # (S, n)
         n = Rm.shape[0]
-        G = np.einsum("sa,sb->sab", b, b)[None] + np.einsum("isj,aj,bj->isab", interior.astype(float), Rm, Rm)
-        scale = np.einsum("isaa->is", G)[..., None, None]
-        G = G + 1e-12 * np.maximum(scale, 1e-30) * np.eye(n)[None, None]
+        S = b.shape[0]
+        RR = (Rm[:, None, :] * Rm[None, :, :]).reshape(n * n, -1).T          # (m', n*n) outer products R_j R_j'
+        G = (interior.reshape(N * S, -1).astype(float) @ RR).reshape(N, S, n, n)
+        G += (b[:, :, None] * b[:, None, :])[None]
+        scale = np.trace(G, axis1=2, axis2=3)[..., None, None]
+        G += 1e-12 * np.maximum(scale, 1e-30) * np.eye(n)[None, None]
         lam = np.linalg.solve(G, np.broadcast_to(b[None], (N,) + b.shape)[..., None])[..., 0]   # (N, S, n)
-        gcol = np.einsum("isn,nj->isj", lam, Rm) * al * ok[..., None]                        # dw/dFa (N, S, m')
+        gcol = (lam @ Rm) * al * ok[..., None]                                              # dw/dFa (N, S, m')
         gcol = gcol * (Fa > 0)[:, None, :]
         gmus = gcol @ inst.A                                     # dw/dF base muscles (N, S, m)
         wf = np.full((N, K * J), -1.0)
@@ -182,10 +185,9 @@ class Simulator:
         gfull[:, sel] = gmus * self.fmul.reshape(K * J)[sel][None, :, None]
         g = np.take_along_axis(gfull.reshape(N, K, J, -1), j[..., None, None], 2)[:, :, 0]   # (N, K, m)
         p = int(self.pidx.max()) + 1
-        dphi = np.zeros((N, K, p))
-        for q in range(p):
-            cols = self.pidx == q
-            dphi[:, :, q] = (g[:, :, cols] * Fm[:, None, cols]).sum(axis=2)
+        onehot = np.zeros((len(self.pidx), p))
+        onehot[np.arange(len(self.pidx)), self.pidx] = 1.0
+        dphi = (g * Fm[:, None, :]) @ onehot                                            # (N, K, p)
         return f, dphi
 
 

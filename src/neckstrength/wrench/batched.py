@@ -174,7 +174,7 @@ _HASH_WEIGHTS = np.random.default_rng(20261123).integers(1, 2**62, size=4096, dt
 _BLAS: dict = {}
 
 
-def _single_threaded_blas():
+def single_threaded_blas():
     """Context: numpy's BLAS on one thread (via threadpoolctl when it is installed).
 
     The products here are many and small to medium sized; a multi-threaded BLAS
@@ -190,6 +190,9 @@ def _single_threaded_blas():
             _BLAS["ctl"] = None
     ctl = _BLAS["ctl"]
     return ctl.limit(limits=1, user_api="blas") if ctl is not None else contextlib.nullcontext()
+
+
+_single_threaded_blas = single_threaded_blas
 
 
 class _Basis:
@@ -916,13 +919,17 @@ class DirectionSolver:
         """:meth:`_try` of every row ``rows[t]`` against ``bases[lab[t]]`` in compiled code: (ok, w, alpha)."""
         if self._nslots + len(bases) > 4 * self.max_bases:      # evicted bases' slots: start afresh
             self._slots, self._nslots, self._slot_gen = None, 0, self._slot_gen + 1
-        slot = np.array([self._slot(bb) for bb in bases], dtype=np.int64)
+        lab = np.asarray(lab, dtype=np.int64)
+        uniq = np.flatnonzero(np.bincount(lab, minlength=len(bases)))   # slots of the bases these rows use only
+        pos = np.empty(len(bases), dtype=np.int64)
+        pos[uniq] = np.arange(uniq.size)
+        slot = np.array([self._slot(bases[i]) for i in uniq], dtype=np.int64)
         CW3, qv, wb, P3, isb = self._slots
         R = rows.size
         ok = np.empty(R, dtype=np.bool_)
         ww = np.empty(R)
         aa = np.empty((R if want else 1, self.m))
-        _simplex.check_rows(F, rows.astype(np.int64), slot[np.asarray(lab, dtype=np.int64)], CW3, qv, wb, P3, isb,
+        _simplex.check_rows(F, rows.astype(np.int64), slot[pos[lab]], CW3, qv, wb, P3, isb,
                             self.lb, self.ub, want, ok, ww, aa)
         return ok, ww, aa
 
