@@ -1001,12 +1001,14 @@ class BasisCache:
         R = np.ascontiguousarray(R, dtype=float)
         return hashlib.blake2b(R.tobytes(), digest_size=16).digest() + repr(R.shape).encode()
 
-    def entry(self, R: np.ndarray, b: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> DirectionSolver:
-        """The solver for one direction (``b = J^T u``) and activation-bound vector."""
+    def entry(self, R: np.ndarray, b: np.ndarray, lb: np.ndarray, ub: np.ndarray,
+              rkey: bytes | None = None) -> DirectionSolver:
+        """The solver for one direction (``b = J^T u``) and activation-bound vector (``rkey``: ``_rkey(R)``
+        if the caller has it)."""
         b = np.ascontiguousarray(b, dtype=float)
         lb = np.ascontiguousarray(lb, dtype=float)
         ub = np.ascontiguousarray(ub, dtype=float)
-        key = (self._rkey(R), b.tobytes(), lb.tobytes(), ub.tobytes())
+        key = (self._rkey(R) if rkey is None else rkey, b.tobytes(), lb.tobytes(), ub.tobytes())
         e = self._entries.get(key)
         if e is None:
             e = DirectionSolver(R, b, lb, ub, self.max_bases, self.decay, self.simplex)
@@ -1036,12 +1038,12 @@ class BasisCache:
 
 
 def _bound_rows(K: int, m: int, alpha_lb, alpha_ub) -> tuple[np.ndarray, np.ndarray]:
-    lbs = np.broadcast_to(np.zeros(m) if alpha_lb is None else np.asarray(alpha_lb, float), (K, m))
-    ubs = np.broadcast_to(np.ones(m) if alpha_ub is None else np.asarray(alpha_ub, float), (K, m))
-    out_l, out_u = np.empty((K, m)), np.empty((K, m))
-    for k in range(K):
-        out_l[k], out_u[k] = _bounds(m, lbs[k], ubs[k])
-    return out_l, out_u
+    """(K x m) activation bounds, checked as :func:`neckstrength.wrench.problem._bounds` checks one row."""
+    lbs = np.broadcast_to(np.zeros(m) if alpha_lb is None else np.asarray(alpha_lb, float), (K, m)).copy()
+    ubs = np.broadcast_to(np.ones(m) if alpha_ub is None else np.asarray(alpha_ub, float), (K, m)).copy()
+    if np.any(lbs < 0) or np.any(ubs > 1) or np.any(lbs > ubs):
+        raise ValueError("activation bounds must satisfy 0 <= alpha_lb <= alpha_ub <= 1")
+    return lbs, ubs
 
 
 def max_wrench_batched_arrays(R: np.ndarray, JT: np.ndarray, F: np.ndarray, U: np.ndarray,
@@ -1079,7 +1081,8 @@ def max_wrench_batched_arrays(R: np.ndarray, JT: np.ndarray, F: np.ndarray, U: n
     w = np.zeros((N, K))
     status = np.zeros((N, K), dtype=np.int8)
     alpha = np.empty((N, K, m)) if return_alpha else None    # every row is written below
-    solvers = [cache.entry(R, JT @ U[k], lbs[k], ubs[k]) for k in range(K)]
+    rkey = BasisCache._rkey(R)
+    solvers = [cache.entry(R, JT @ U[k], lbs[k], ubs[k], rkey) for k in range(K)]
     n_threads = max(1, min(int(n_threads), K))
 
     def run(k: int, s: int, e: int, Fc: np.ndarray, fmax: float, Fc32: np.ndarray) -> None:
