@@ -386,7 +386,7 @@ def propose_measurements(ctx: GapContext, forces: np.ndarray, diag, head: HeadEl
                          "cum_elbf_if_a": cum[q, 0], "cum_elbf_if_b": cum[q, 1], "sigma": sigma})
     tab = pd.DataFrame(rows, columns=PROPOSAL_COLUMNS)
     info.update({"proposed": bool(len(chosen)), "candidates": [pr.label for pr in preds], "sigma": sigma,
-                 "noise_source": src, "objective": s.objective, "pool_size": len(pool),
+                 "noise_source": src, "parameter_uncertainty": s.parameter_uncertainty, "objective": s.objective, "pool_size": len(pool),
                  "pool_usable": int(usable.sum()),
                  "measurements": [str(pool["name"].iloc[j]) for j in chosen],
                  "indistinguishable_pairs": [f"{preds[a].label} / {preds[b].label}" for a, b in same],
@@ -395,3 +395,13 @@ def propose_measurements(ctx: GapContext, forces: np.ndarray, diag, head: HeadEl
                                      for q, (a, b) in enumerate(pairs)} if trace else {}})
     return tab, info
 
+
+
+def attach_proposal(ctx: GapContext, forces: np.ndarray, diag, head: HeadEllipsoid,
+                    s: DiscriminateSettings = DiscriminateSettings(), plane_bands: dict | None = None):
+    """Add the proposal to a diagnosis: ``diag.discrimination`` (the table of :func:`propose_measurements`)
+    and ``diag.summary['discrimination']`` (its summary). Returns ``diag``."""
+    tab, info = propose_measurements(ctx, forces, diag, head, s, plane_bands)
+    diag.discrimination = tab
+    diag.summary["discrimination"] = info
+    return diag
