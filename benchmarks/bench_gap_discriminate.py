@@ -12,6 +12,10 @@ best below ``gap.discriminate.p_best_below``) three diagnoses are compared:
       generator's strengths and effect) with the case's own noise level;
 (iii) plus ``n`` measurements drawn at random (uniform, with replacement) from the same pool, measured likewise.
 
+A second score (``fit_*``) asks whether the added measurements carry the discriminating information, whatever the
+cross-validated diagnosis makes of them: among the top candidates of (i), with their effect parameters fixed, the
+one whose strengths fit all measured forces best (least squares of the relative residuals).
+
 Prints and writes (``--out``, JSON + markdown) the share of correct identifications in (i), (ii), (iii), the number
 of cases, the seed streams, the sizes and the machine load. All random draws derive from the config seed via
 ``derive_rng`` with named keys (``gap-discriminate/...``).
@@ -32,6 +36,16 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+
+def _best_fit(ctx, forces, top, thetas, fit_candidate) -> str:
+    """Of the top candidates (effect parameters fixed at the original diagnosis's all-direction fit), the one whose
+    strengths fit all measured forces best (least squares of relative residuals = maximum likelihood at a common
+    noise level; the same free strengths for all, so no penalty)."""
+    from neckstrength.gap.fit import FitSettings
+
+    losses = {c: fit_candidate(ctx, forces, c, thetas[c], FitSettings(max_iter=15))[1] for c in top}
+    return min(losses, key=losses.get)
 
 
 def _paired(df: pd.DataFrame) -> dict:
@@ -79,7 +93,7 @@ def main() -> None:
     )
     from neckstrength.gap.benchmark import BenchmarkSettings, blind, generate_cases
     from neckstrength.gap.diagnose import BlindData, diagnose
-    from neckstrength.gap.discriminate import extended_context, measurement_pool, propose_measurements
+    from neckstrength.gap.discriminate import extended_context, fit_candidate, measurement_pool, propose_measurements
     from neckstrength.gap.effects import EFFECTS, compose
     from neckstrength.gap.engine import CalibrationSettings
     from neckstrength.gap.fit import FitSettings, Simulator
@@ -136,15 +150,20 @@ def main() -> None:
         names = list(pool["name"])
         prop = [names.index(m) for m in info["measurements"]]
         rnd = list(derive_rng(seed, f"gap-discriminate/random/{a.model}/{c.name}").integers(0, len(pool), len(prop)))
-        res = {}
+        res, lik = {}, {}
+        thetas = {r.candidate: json.loads(r.theta_values) for r in d0.effects.itertuples()}
+        lik["original"] = _best_fit(ctx, c.forces, top, thetas, fit_candidate)
         for tag, idx in (("proposed", prop), ("random", rnd)):
             ext, f = measure(c, idx, tag)
             res[tag] = diagnose(ext, [BlindData(c.name, f)], ds)[0]
+            lik[tag] = _best_fit(ext, f, top, thetas, fit_candidate)
         rows.append({"case": c.name, "injected": c.label, "size_share": c.size_share, "noise": c.noise,
                      "p_best_i": float(d0.effects.sort_values("rank")["p_best"].iloc[0]),
                      "truth_in_top": c.label in top, "top": "/".join(top),
                      "identified_i": d0.summary["chosen"], "identified_ii": res["proposed"].summary["chosen"],
                      "identified_iii": res["random"].summary["chosen"],
+                     "fit_choice_i": lik["original"], "fit_choice_ii": lik["proposed"],
+                     "fit_choice_iii": lik["random"],
                      "proposed": ";".join(info["measurements"]),
                      "random": ";".join(str(pool["name"].iloc[j]) for j in rnd),
                      "elbf_min_pair": min((min(v) for v in info["expected_log_bf"].values()), default=np.nan),
@@ -155,6 +174,7 @@ def main() -> None:
     df = pd.DataFrame(rows)
     for t in ("i", "ii", "iii"):
         df[f"correct_{t}"] = df[f"identified_{t}"] == df["injected"]
+        df[f"fit_correct_{t}"] = df[f"fit_choice_{t}"] == df["injected"]
     l1 = os.getloadavg()
     summ = {"model": a.model, "directions": ctx.K, "effects": list(effects), "replicates_per_effect": a.replicates,
             "cases": len(cases), "close_cases": len(df), "noise": a.noise, "size": [lo, hi],
@@ -166,9 +186,12 @@ def main() -> None:
             "share_correct_ii": float(df["correct_ii"].mean()) if len(df) else None,
             "share_correct_iii": float(df["correct_iii"].mean()) if len(df) else None,
             "truth_in_top": float(df["truth_in_top"].mean()) if len(df) else None,
+            **{f"share_fit_correct_{t}": float(df[f"fit_correct_{t}"].mean()) if len(df) else None
+               for t in ("i", "ii", "iii")},
             **_paired(df),
             "wall_s": time.perf_counter() - t0, "load_start": l0, "load_end": l1, "cpu_count": os.cpu_count()}
-    by = (df.groupby("injected")[["correct_i", "correct_ii", "correct_iii"]].agg(["sum", "count"])
+    by = (df.groupby("injected")[["correct_i", "correct_ii", "correct_iii", "fit_correct_i", "fit_correct_ii",
+                                  "fit_correct_iii"]].agg(["sum", "count"])
           if len(df) else pd.DataFrame())
     print(df.drop(columns=["proposed", "random"]).to_string(index=False))
     print(json.dumps(summ, indent=1))

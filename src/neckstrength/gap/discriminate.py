@@ -166,6 +166,23 @@ def _fit_run(sim: Simulator, T: np.ndarray, W: np.ndarray, phi0: np.ndarray, pri
     return res
 
 
+def fit_candidate(ctx: GapContext, T: np.ndarray, label: str, theta: dict, fit: FitSettings | None = None,
+                  starts: Sequence[np.ndarray] = ()) -> tuple[np.ndarray, float]:
+    """Log free strengths and training loss of candidate ``label`` (effect parameters ``theta`` fixed) fitted to
+    the forces ``T`` on all directions of ``ctx``; starts: the baseline scaled to the data (Eq. 5.3 idea) and
+    ``starts``; the best is kept."""
+    T = np.asarray(T, float)
+    sim = Simulator(ctx, _instance(ctx, label, theta))
+    base = Simulator(ctx, base_instance(ctx), sim.cache)
+    W = np.ones((1, ctx.K))
+    prior = start_point(base, T[None], W)
+    P0 = np.array([prior[0]] + [np.asarray(p, float) for p in starts if p is not None])
+    res = _fit_run(sim, np.repeat(T[None], len(P0), 0), np.repeat(W, len(P0), 0), P0,
+                   np.repeat(prior, len(P0), 0), fit or FitSettings())
+    b = int(np.argmin(res.loss))
+    return res.phi[b], float(res.loss[b])
+
+
 def predict_candidate(ctx: GapContext, T: np.ndarray, label: str, theta: dict, pool: pd.DataFrame,
                       sigma: float, s: DiscriminateSettings = DiscriminateSettings(),
                       starts: Sequence[np.ndarray] = ()) -> CandidatePrediction:
@@ -174,16 +191,7 @@ def predict_candidate(ctx: GapContext, T: np.ndarray, label: str, theta: dict, p
     measured directions followed by the ``pool``."""
     T = np.asarray(T, float)
     K = ctx.K
-    sim = Simulator(ctx, _instance(ctx, label, theta))
-    base = Simulator(ctx, base_instance(ctx), sim.cache)
-    W = np.ones((1, K))
-    prior = start_point(base, T[None], W)
-    phis = [prior[0]] + [np.asarray(p, float) for p in starts if p is not None]
-    P0 = np.array(phis)
-    res = _fit_run(sim, np.repeat(T[None], len(P0), 0), np.repeat(W, len(P0), 0), P0,
-                   np.repeat(prior, len(P0), 0), s.fit)
-    b = int(np.argmin(res.loss))
-    phi = res.phi[b]
+    phi, loss = fit_candidate(ctx, T, label, theta, s.fit, starts)
     ext = extended_context(ctx, pool)
     names = parse_label(label)
     sim_e = Simulator(ext, _instance(ext, label, theta))
@@ -196,7 +204,7 @@ def predict_candidate(ctx: GapContext, T: np.ndarray, label: str, theta: dict, p
     n_ext = len(F)
     p = len(phi)
     if not s.parameter_uncertainty:
-        return CandidatePrediction(label, theta, phi, float(res.loss[b]), logF, np.zeros((n_ext, n_ext)))
+        return CandidatePrediction(label, theta, phi, loss, logF, np.zeros((n_ext, n_ext)))
     G = [np.where(ok[:, None], dphi / np.where(ok, F, 1.0)[:, None], 0.0)]
     prec = [np.full(p, 1.0 / max(s.strength_spread, 1e-6) ** 2)]
     fm = sim_e.muscles(phi[None])
@@ -219,7 +227,7 @@ def predict_candidate(ctx: GapContext, T: np.ndarray, label: str, theta: dict, p
     Jm = G[:K][ok[:K]]
     H = Jm.T @ Jm / max(sigma, 1e-6) ** 2 + np.diag(np.concatenate(prec))
     cov_par = np.linalg.inv(H)
-    return CandidatePrediction(label, theta, phi, float(res.loss[b]), logF, G @ cov_par @ G.T)
+    return CandidatePrediction(label, theta, phi, loss, logF, G @ cov_par @ G.T)
 
 
 # ----------------------------------------------------------------------------- expected log Bayes factor
