@@ -9,7 +9,8 @@ best below ``gap.discriminate.p_best_below``) three diagnoses are compared:
 
 (i)   the original directions only;
 (ii)  plus the ``n`` measurements proposed by :mod:`neckstrength.gap.discriminate`, "measured" on the truth (the
-      generator's strengths and effect) with the case's own noise level;
+      generator's strengths and effect) with the case's own noise level; a repeated test direction enters as the
+      geometric mean of its trials, a new surface point as a new direction;
 (iii) plus ``n`` measurements drawn at random (uniform, with replacement) from the same pool, measured likewise.
 
 A second score (``fit_*``) asks whether the added measurements carry the discriminating information, whatever the
@@ -133,15 +134,28 @@ def main() -> None:
         f"{len(pool)} measurements")
 
     def measure(case, idx, tag):
-        """Forces of pool entries ``idx`` from the case's truth, with its noise (stream gap-discriminate/measure/...)."""
-        extra = pool.iloc[list(idx)].copy()
-        extra["name"] = [f"{n}@{k}" for k, n in enumerate(extra["name"])]     # unique names for repeats
+        """Data with the pool entries ``idx`` measured on the case's truth, with its noise (stream
+        gap-discriminate/measure/...). A repeat of a test direction enters as the geometric mean of all trials of
+        that direction (the data keep one force per direction: the cross-validation holds out directions, and a
+        repeat in another fold than its twin would be predicted from itself); a new surface point becomes a new
+        direction (two measurements of one new point: their geometric mean)."""
+        chosen = pool.iloc[list(idx)]
+        new_names = list(dict.fromkeys(chosen.loc[chosen["kind"] == "new", "name"]))
+        extra = pool[pool["name"].isin(new_names)].set_index("name").loc[new_names].reset_index()
         ext = extended_context(ctx, extra)
-        effs = [EFFECTS[n](ext) for n in case.theta]
-        clean = Simulator(ext, compose(ext, effs, [case.theta[n] for n in case.theta])).forces(case.f_true[None])[0]
+        meas_pool = extended_context(ctx, chosen)
+        effs = [EFFECTS[n](meas_pool) for n in case.theta]
+        clean = Simulator(meas_pool, compose(meas_pool, effs, [case.theta[n] for n in case.theta])).forces(
+            case.f_true[None])[0][ctx.K:]
         rng = derive_rng(seed, f"gap-discriminate/measure/{a.model}/{case.name}/{tag}")
-        new = clean[ctx.K:] * np.exp(rng.normal(0.0, case.noise, len(idx)))
-        return ext, np.r_[case.forces, new]
+        logs = np.log(clean) + rng.normal(0.0, case.noise, len(idx))
+        names = list(ctx.directions["name"])
+        trials = {n: [float(np.log(f))] for n, f in zip(names, case.forces)}
+        trials.update({n: [] for n in new_names})
+        for (kind, src, nm), lf in zip(chosen[["kind", "source", "name"]].itertuples(index=False), logs):
+            trials[src if kind == "repeat" else nm].append(float(lf))
+        f = np.array([np.exp(np.mean(trials[n])) for n in names + new_names])
+        return ext, f
 
     for k, c in enumerate(close):
         d0 = diags[c.name]
