@@ -9,8 +9,8 @@ reconstructed head surface (:func:`surface_points`, the cranial ellipsoid of ``d
 
 **Predictive distribution.** Under candidate ``a`` the log force of a set of new measurements is normal with
 mean ``log F_a`` (the candidate's all-direction fit) and covariance ``sigma^2 I + G_a Cov_a G_a^T``:
-log-normal measurement noise ``sigma`` (the calibration's noise level, or the held-out RMS relative residual
-of the best candidate, or a number from repeat trials) plus the candidate's parameter uncertainty (Laplace:
+log-normal measurement noise ``sigma`` (the calibration's noise level, or the smaller RMS log held-out
+residual of the base model and the chosen candidate, or a number from repeat trials) plus the candidate's parameter uncertainty (Laplace:
 ``Cov_a = (J'J / sigma^2 + Prior)^-1`` over its log free strengths and effect parameters, ``J`` the Jacobian
 of the log forces of the measured directions - exact for the strengths, forward differences for the
 effect parameters - ``Prior`` the population spread of log strengths and a uniform-variance prior on each
@@ -55,8 +55,9 @@ class DiscriminateSettings:
     ``p_best_below``: propose only when the best candidate's bootstrap P(best) is below this;
     ``candidates``: how many of the top-ranked candidates are compared (all pairs among them);
     ``measurements``: how many additional measurements are proposed (greedy); ``objective``: 'saturating',
-    'min' or 'sum' over the pairs' expected log Bayes factors (:data:`OBJECTIVES`); ``noise``: 'auto' (calibration noise level, else the held-out
-    RMS relative residual of the best candidate) or a log-normal SD (e.g. from repeat trials);
+    'min' or 'sum' over the pairs' expected log Bayes factors (:data:`OBJECTIVES`); ``noise``: 'auto'
+    (the calibration's noise level, else the smaller RMS log held-out residual of the base model and the
+    chosen candidate) or a log-normal SD (e.g. from repeat trials);
     ``parameter_uncertainty``: add the candidates' Laplace parameter uncertainty to the predictive;
     ``strength_spread``: prior SD of log strengths for it; ``repeats`` / ``surface``: which measurements
     make up the pool; ``azimuth_step_deg``, ``elevation_deg``: the surface grid; points with |azimuth| <=
@@ -318,8 +319,11 @@ def noise_level(diag, s: DiscriminateSettings) -> tuple[float, str]:
     sm = diag.summary
     if sm.get("calibrated") and np.isfinite(sm.get("noise_sigma", np.nan)):
         return float(sm["noise_sigma"]), f"the calibration's noise level ({sm.get('noise_source')})"
-    r = diag.effects["rms_rel_cv"].to_numpy(float)
-    return float(np.nanmin(r)), "held-out RMS relative residual of the best candidate"
+    res = diag.residuals
+    T = res["measured_N"].to_numpy(float)
+    rms = [float(np.sqrt(np.mean(np.log(np.maximum(res[c].to_numpy(float), 1e-12) / T) ** 2)))
+           for c in ("heldout_N", "chosen_heldout_N") if c in res]
+    return min(rms), "the smaller RMS log held-out residual of the base model and the chosen candidate"
 
 
 def _strength_starts(ctx: GapContext, diag) -> list[np.ndarray]:
