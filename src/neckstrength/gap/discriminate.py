@@ -364,8 +364,9 @@ def propose_measurements(ctx: GapContext, forces: np.ndarray, diag, head: HeadEl
     p_best = float(ef["p_best"].iloc[0])
     info = {"p_best_top": p_best, "threshold": s.p_best_below, "proposed": False}
     if not (p_best < s.p_best_below) or len(ef) < 2:
-        info["note"] = (f"not needed: P(best) of `{ef['candidate'].iloc[0]}` = {p_best:.2f} >= {s.p_best_below:g}"
-                        if len(ef) >= 2 else "only one candidate")
+        info["note"] = ("only one candidate" if len(ef) < 2 else
+                        "no bootstrap P(best) (gap.bootstrap = 0)" if not np.isfinite(p_best) else
+                        f"not needed: P(best) of `{ef['candidate'].iloc[0]}` = {p_best:.2f} >= {s.p_best_below:g}")
         return pd.DataFrame(columns=PROPOSAL_COLUMNS), info
     top = ef.head(max(2, int(s.candidates)))
     sigma, src = noise_level(diag, s)
