@@ -261,10 +261,12 @@ def _cmd_diagnose(args) -> int:
     from neckstrength.config import (
         build_directions,
         diagnosis_settings,
+        discriminate_settings,
         gap_blind_dataset,
         gap_context,
         gap_settings_text,
         gap_withheld_activations,
+        head_from_config,
     )
     from neckstrength.gap.run import DATASET_FILES, FIGURES, run_diagnosis
 
@@ -285,7 +287,8 @@ def _cmd_diagnose(args) -> int:
         settings = diagnosis_settings(cfg)
         s = run_diagnosis(ctx, data, settings, directions,
                           gap_withheld_activations(cfg, ctx, args.dataset), outputs,
-                          gap_settings_text(cfg, settings), model)
+                          gap_settings_text(cfg, settings), model, discriminate_settings(cfg),
+                          head_from_config(cfg), cfg["geometry"]["plane_bands"])
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -24,6 +24,7 @@ from neckstrength.abc.algorithm4 import ABCSettings
 from neckstrength.estimation.datasets import build_dataset, model_directions_table, participant_dataset
 from neckstrength.gap.benchmark import BenchmarkSettings
 from neckstrength.gap.diagnose import BlindData, DiagnosisSettings
+from neckstrength.gap.discriminate import DiscriminateSettings
 from neckstrength.gap.effects import GapContext
 from neckstrength.gap.engine import CalibrationSettings
 from neckstrength.gap.fit import FitSettings
@@ -204,6 +205,28 @@ def diagnosis_settings(config: Mapping, effects: Sequence[str] | None = None) ->
                              calibration=calibration_settings(config))
 
 
+def discriminate_settings(config: Mapping) -> DiscriminateSettings | None:
+    """``gap.discriminate`` (absent or ``enabled: false``: no proposal of additional measurements)."""
+    d = dict(config["gap"].get("discriminate") or {})
+    if not d or not d.get("enabled", True):
+        return None
+    noise = d.get("noise", "auto")
+    f = config["gap"]["fit"]
+    fit = FitSettings(max_iter=f["max_iter"], ridge=f["ridge"], bounds_rel=tuple(f["bounds_rel"]),
+                      fd_step=f["fd_step"], tol=f["tol"])
+    pool = dict(d.get("pool") or {})
+    kw = {k: pool[k] for k in ("repeats", "surface", "azimuth_step_deg", "face_max_abs_azimuth_deg",
+                                "face_max_elevation_deg") if k in pool}
+    if "elevation_deg" in pool:
+        kw["elevation_deg"] = tuple(float(x) for x in pool["elevation_deg"])
+    return DiscriminateSettings(p_best_below=float(d.get("p_best_below", 0.7)),
+                                candidates=int(d.get("candidates", 3)), measurements=int(d.get("measurements", 3)),
+                                objective=str(d.get("objective", "saturating")),
+                                noise=noise if isinstance(noise, str) else float(noise),
+                                parameter_uncertainty=bool(d.get("parameter_uncertainty", True)),
+                                strength_spread=float(d.get("strength_spread", 0.3)), fit=fit, **kw)
+
+
 def calibration_settings(config: Mapping) -> CalibrationSettings:
     """``gap.calibration`` (absent: no calibration, the uncalibrated score ranking)."""
     c = dict(config["gap"].get("calibration") or {})
@@ -328,4 +351,17 @@ def gap_settings_text(config: Mapping, s: DiagnosisSettings) -> str:
                       f"{s.calibration.power_replicates} replicates each (target {s.calibration.power_target}); "
                       f"screen (measured and simulated data alike): {s.calibration.starts} start(s), max_iter "
                       f"{s.calibration.max_iter}",
+                      *_discriminate_text(config),
                       f"- seed {config['seed']}"])
+
+
+def _discriminate_text(config: Mapping) -> list[str]:
+    d = discriminate_settings(config)
+    if d is None:
+        return ["- additional measurements: not proposed (`gap.discriminate` absent or disabled)"]
+    return [(f"- additional measurements (gap.discriminate): when P(best) of the best < {d.p_best_below}, the "
+            f"{d.measurements} that best separate the top {d.candidates} candidates (objective {d.objective}; noise "
+            f"{d.noise}; parameter uncertainty {'on' if d.parameter_uncertainty else 'off'}, strength spread "
+            f"{d.strength_spread}); pool: {'repeats' if d.repeats else ''}{' + ' if d.repeats and d.surface else ''}"
+            f"{'surface grid every ' + format(d.azimuth_step_deg, 'g') + ' deg azimuth at elevations ' if d.surface else ''}"
+            f"{list(d.elevation_deg) if d.surface else ''}")]

@@ -74,6 +74,13 @@ def test_chapter4_tolerance_reruns_claims_only(done, tmp_path):
                                                   "chapter4_surface", "chapter4_reference"))], rules
 
 
+def test_gap_discriminate_reruns_the_diagnoses_only(done, tmp_path):
+    # issue 17 item 5: the proposal of additional measurements is part of each diagnosis (report, csv)
+    rules = scheduled_rules(done, changed_config(done, tmp_path, "gap.discriminate.measurements", 4), run_cmd)
+    assert rules.get("gap_diagnose") == 2, rules          # S003, S005 (config.ci.yaml)
+    assert "gap_benchmark" not in rules and not [r for r in rules if r.startswith(("model_", "chapter"))], rules
+
+
 def test_settings_view_refuses_undeclared_keys():
     cfg = {"seed": 1, "chapter5": {"epsilon": 3.0, "q": 90.0, "settings": {"p2m7": {"sigma0": 0.3}}}}
     v = settings_view(select_settings(cfg, ["seed", "chapter5.epsilon", "chapter5.settings.p2m7", "chapter5.x"]),

@@ -21,6 +21,7 @@ rule gap_diagnose:
         strengths="results/gap/{model}/{dataset}/strengths.csv",
         activation_check="results/gap/{model}/{dataset}/activation_check.csv",
         power="results/gap/{model}/{dataset}/power.csv",
+        discrimination="results/gap/{model}/{dataset}/discrimination.csv",
         summary="results/gap/{model}/{dataset}/summary.json",
         report="results/gap/{model}/{dataset}/report.md",
         fig_radar=report(
@@ -52,11 +53,11 @@ rule gap_diagnose:
             labels={"model": "{model}", "dataset": "{dataset}", "figure": "Table A.3 check"},
         ),
     params:
-        settings=settings("chapter5", "data", "gap.bootstrap", "gap.calibration", "gap.effect_settings",
-            "gap.effects", "gap.fit", "gap.folds", "gap.grid_points", "gap.measurements", "gap.pair_grid_top",
-            "gap.pairs_top", "gap.penalty", "gap.reach_iter", "gap.reach_samples", "gap.refine_iter", "gap.refine_starts",
-            "gap.shoulder_muscles", "gap.start_spread", "gap.starts", "gap.tie_sides", "geometry.head.centre",
-            "model", "seed"),
+        settings=settings("chapter5", "data", "gap.bootstrap", "gap.calibration", "gap.discriminate",
+            "gap.effect_settings", "gap.effects", "gap.fit", "gap.folds", "gap.grid_points", "gap.measurements",
+            "gap.pair_grid_top", "gap.pairs_top", "gap.penalty", "gap.reach_iter", "gap.reach_samples",
+            "gap.refine_iter", "gap.refine_starts", "gap.shoulder_muscles", "gap.start_spread", "gap.starts",
+            "gap.tie_sides", "geometry.head", "geometry.plane_bands", "model", "seed"),
     log:
         "logs/gap/{model}/{dataset}/diagnose.log",
     threads: 1

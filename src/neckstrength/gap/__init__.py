@@ -12,6 +12,8 @@ Modules, each importing downward only:
                      test, power per effect
 - :mod:`.diagnose`   where (residuals by direction, plane, wrench component, active muscle; reach envelope),
                      which (cross-validation over held-out directions, calibrated decision, ranking) and how far
+- :mod:`.discriminate` which additional measurements (repeats, further points on the head surface) would tell
+                     the leading candidates apart: expected log Bayes factor per pair, greedy proposal
 - :mod:`.store`      per-data-set results on disk, keyed by everything they depend on (resume)
 - :mod:`.benchmark`  withheld-effect generator and blind scoring (kept apart from the diagnosis)
 - :mod:`.report`     per-data-set markdown report and figures

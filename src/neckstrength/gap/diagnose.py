@@ -71,6 +71,7 @@ class DatasetDiagnosis:
     activations: dict = field(default_factory=dict)   # candidate -> (K x m) model-muscle activations (full fit)
     power: pd.DataFrame = field(default_factory=pd.DataFrame)          # per effect and size (calibration)
     power_summary: pd.DataFrame = field(default_factory=pd.DataFrame)  # per effect: smallest detectable size
+    discrimination: pd.DataFrame = field(default_factory=pd.DataFrame)  # proposed measurements (gap.discriminate)
 
 
 

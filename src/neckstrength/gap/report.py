@@ -176,6 +176,40 @@ def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
     return lines
 
 
+def _discrimination_lines(diag: DatasetDiagnosis) -> list[str]:
+    """Which additional measurements would tell the leading candidates apart (gap.discriminate)."""
+    info = diag.summary.get("discrimination")
+    if not info:
+        return []
+    lines = ["## Which tests would tell the leading candidates apart", ""]
+    if not info.get("proposed"):
+        return lines + [f"No additional measurements proposed: {info.get('note', 'none found')}.", ""]
+    tab = getattr(diag, "discrimination", pd.DataFrame())
+    pairs = "; ".join(f"`{k}`: {v[0]:.2f} if the first is true, {v[1]:.2f} if the second is"
+                      for k, v in info["expected_log_bf"].items())
+    lines += [(f"The best candidate's bootstrap P(best) is {info['p_best_top']:.2f} (< {info['threshold']:g}), so the "
+              f"ranking does not separate {', '.join(f'`{c}`' for c in info['candidates'])}. Measuring "
+              f"**{', '.join(info['measurements'])}** (greedy, objective `{info['objective']}` over the pairs, from a "
+              f"pool of {info['pool_size']} measurements: repeats of the test directions (`#2`) and points `azAAA_elEE` "
+              f"on the reconstructed head surface, force along its outward normal) has an expected log Bayes factor "
+              f"per pair of {pairs}."),
+              (f"Predictive of each candidate: its fit on all directions (effect parameters as in the ranking), "
+              f"log-normal noise SD {info['sigma']:.3f} ({info['noise_source']})"
+              + (" plus its parameter uncertainty (Laplace)" if info.get("parameter_uncertainty", True) else "")
+              + ". A log Bayes factor of 1 is odds of e:1; the values are expectations under the model, "
+              "not calibrated error rates."
+              + (f" Not separable by any force measurement in the pool: {'; '.join(info['indistinguishable_pairs'])}."
+                 if info.get("indistinguishable_pairs") else "")), ""]
+    if len(tab):
+        show = tab[["step", "measurement", "kind", "planes", "candidate_a", "candidate_b", "force_a_N", "force_b_N",
+                    "elbf_if_a", "elbf_if_b", "cum_elbf_if_a", "cum_elbf_if_b"]]
+        lines += [markdown_table(show), "",
+                  ("`elbf_if_a`: expected log Bayes factor of this measurement alone for `candidate_a` over "
+                  "`candidate_b` if `candidate_a` is true (`_if_b`: the reverse); `cum_*`: of all proposed "
+                  "measurements up to this step (`discrimination.csv` has the points and normals)."), ""]
+    return lines
+
+
 def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str, str], act: pd.DataFrame,
                  settings_text: str) -> str:
     s = diag.summary
@@ -210,6 +244,7 @@ def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str,
              "`p_best`: share of bootstrap samples in which the candidate ranks first; `D_fit`: fit on all "
              "directions; `theta`: effect parameters of that fit.", "",
              f"![which]({figures['effects']})", "",
+             *_discrimination_lines(diag),
              "## Where: by plane", "", markdown_table(diag.planes.drop(columns=["directions"])), "",
              "## Where: by wrench component", "", markdown_table(diag.components), "",
              "## Where: by active muscle group", "", markdown_table(diag.muscles), "",

@@ -15,20 +15,28 @@ import numpy as np
 import pandas as pd
 
 from neckstrength.gap.diagnose import BlindData, DiagnosisSettings, diagnose
+from neckstrength.gap.discriminate import PROPOSAL_COLUMNS, DiscriminateSettings, attach_proposal
 from neckstrength.gap.effects import GapContext
 from neckstrength.gap.report import activation_check, write_figures, write_report
 from neckstrength.gap.store import ResultStore
 from neckstrength.io import atomic_write_csv, atomic_write_text
+from neckstrength.model.geometry import HeadEllipsoid
 
 #: Per-data-set tables and figures (keys of ``outputs``; plus 'summary' and 'report').
-DATASET_FILES = ("residuals", "planes", "components", "muscles", "effects", "strengths", "activation_check", "power")
+DATASET_FILES = ("residuals", "planes", "components", "muscles", "effects", "strengths", "activation_check", "power",
+                 "discrimination")
 FIGURES = ("radar", "where", "effects", "activation")
 
 
 def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings, directions: pd.DataFrame,
                   a3: np.ndarray | None, outputs: Mapping[str, str | Path],
-                  settings_text: str, model_name: str) -> dict:
-    """Diagnose one data set and write every output (keys of ``outputs``); returns the summary."""
+                  settings_text: str, model_name: str, discriminate: DiscriminateSettings | None = None,
+                 head: HeadEllipsoid | None = None, plane_bands: Mapping | None = None) -> dict:
+    """Diagnose one data set and write every output (keys of ``outputs``); returns the summary.
+
+    With ``discriminate`` and ``head`` (the cranial ellipsoid of the geometry), the measurements that would
+    best tell the leading candidates apart are proposed when they are close
+    (:mod:`neckstrength.gap.discriminate`; output ``discrimination``)."""
     t0 = time.time()
     dataset = data.name
     s = settings
@@ -36,6 +44,14 @@ def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings,
     store = ResultStore(Path(outputs["summary"]).parent / "resume", ctx, s)
     diag = diagnose(ctx, [data], s, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}", flush=True),
                     store=store)[0]
+    if discriminate is not None and head is not None:
+        t1 = time.time()
+        attach_proposal(ctx, data.forces, diag, head, discriminate, plane_bands)
+        info = diag.summary["discrimination"]
+        print(f"[{time.time() - t0:.0f} s] additional measurements: "
+              + (f"{', '.join(info['measurements'])} to tell {', '.join(info['candidates'])} apart"
+                 if info["proposed"] else info.get("note", "none proposed")) + f" ({time.time() - t1:.1f} s)",
+              flush=True)
     act = activation_check(diag, a3)
     hdr = [f"gap diagnosis (issue 8): model {model_name}, data set {dataset}; forces only (Table A.3 withheld)"]
     tables = {"residuals": diag.residuals, "planes": diag.planes, "components": diag.components,
@@ -43,11 +59,14 @@ def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings,
               "power": diag.power if len(diag.power) else pd.DataFrame(
                   {"effect": [], "size_share": [], "theta": [], "replicates": [], "skipped_unproducible": [],
                    "identified": [], "power": []}),
+              "discrimination": (getattr(diag, "discrimination", None) if len(getattr(diag, "discrimination", ()))
+                                 else pd.DataFrame(columns=PROPOSAL_COLUMNS)),
               "activation_check": act if len(act) else pd.DataFrame(
                   {"candidate": [], "pearson_r": [], "spearman_rho": [], "model_mean": [], "a3_mean": [],
                    "mean_abs_diff": []})}
     for k, df in tables.items():
-        atomic_write_csv(df, outputs[k], hdr, float_format="%.6g")
+        if k in outputs:
+            atomic_write_csv(df, outputs[k], hdr, float_format="%.6g")
     figs = {k: outputs[f"fig_{k}"] for k in FIGURES if f"fig_{k}" in outputs}
     if a3 is None:
         Path(figs["activation"]).parent.mkdir(parents=True, exist_ok=True)

@@ -15,10 +15,12 @@ from neckstrength.config import (
     calibration_settings,
     derive_rng,
     diagnosis_settings,
+    discriminate_settings,
     gap_blind_dataset,
     gap_context,
     gap_settings_text,
     gap_withheld_activations,
+    head_from_config,
 )
 from neckstrength.gap.benchmark import run_benchmark
 from neckstrength.gap.diagnose import DiagnosisSettings
@@ -37,7 +39,8 @@ def gap_diagnose(config: Mapping, model_name: str, dataset: str, directions_csv:
     data = gap_blind_dataset(config, ctx, directions, dataset)
     s = diagnosis_settings(config)
     return run_diagnosis(ctx, data, s, directions, gap_withheld_activations(config, ctx, dataset), outputs,
-                         gap_settings_text(config, s), model_name)
+                         gap_settings_text(config, s), model_name, discriminate_settings(config),
+                         head_from_config(config), config["geometry"]["plane_bands"])
 
 
 def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summaries: Sequence[str],

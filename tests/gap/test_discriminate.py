@@ -1,0 +1,116 @@
+"""Which additional measurements tell the leading candidates apart (issue 17, item 5): expected log Bayes factor,
+greedy design, the measurement pool, and the proposal in a diagnosis."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from neckstrength.config import build_directions, discriminate_settings, gap_context, head_from_config, load_config
+from neckstrength.gap import diagnose as dg
+from neckstrength.gap import discriminate as dc
+from neckstrength.gap.effects import EFFECTS, compose
+from neckstrength.gap.fit import FitSettings, Simulator
+from neckstrength.gap.report import _discrimination_lines
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    c = load_config(ROOT / "config" / "config.yaml")
+    c["data"] = {k: str(ROOT / v) for k, v in c["data"].items()}
+    c["geometry"]["test_point_spec"] = str(ROOT / c["geometry"]["test_point_spec"])
+    return c
+
+
+@pytest.fixture(scope="module")
+def ctx_p2(cfg):
+    return gap_context(cfg, "p2m7", build_directions(cfg))
+
+
+def test_expected_log_bf_is_zero_for_equal_predictions_and_grows_with_their_difference():
+    sig2 = 0.1 ** 2
+    assert dc.expected_log_bf([3.0], [[sig2]], [3.0], [[sig2]]) == pytest.approx(0.0, abs=1e-12)
+    vals = [dc.expected_log_bf([3.0], [[sig2]], [3.0 + d], [[sig2]]) for d in (0.0, 0.05, 0.1, 0.2, 0.4)]
+    assert np.all(np.diff(vals) > 0)
+    # equal variances: KL = d^2 / (2 sigma^2) (normal distributions, closed form)
+    assert vals[2] == pytest.approx(0.1 ** 2 / (2 * sig2), rel=1e-10)
+    # two independent measurements add; shared parameter uncertainty (correlated predictive) adds less
+    two = dc.expected_log_bf([3.0, 3.0], np.eye(2) * sig2, [3.1, 3.1], np.eye(2) * sig2)
+    assert two == pytest.approx(2 * vals[2], rel=1e-10)
+    shared = np.full((2, 2), 0.5 * sig2) + np.eye(2) * sig2
+    assert dc.expected_log_bf([3.0, 3.0], shared, [3.1, 3.1], shared) < two
+
+
+def test_greedy_picks_the_discriminating_measurement():
+    sigma = 0.05
+    mu = np.zeros((2, 5))
+    mu[1, 3] = 0.3                                   # only measurement 3 separates the two candidates
+    cov = np.zeros((2, 5, 5))
+    chosen, trace = dc.greedy_design(mu, cov, sigma, 2)
+    assert chosen == [3, 3]                          # and its repeat beats the useless ones
+    assert trace[1][0].min() == pytest.approx(2 * trace[0][0].min(), rel=1e-9)
+    # two equally different measurements; the candidates' parameter uncertainty is large at 3: 4 wins
+    mu[1, 4] = 0.3
+    cov[:, 3, 3] = 0.2 ** 2
+    assert dc.greedy_design(mu, cov, sigma, 1)[0] == [4]
+    # three candidates: measurement 1 separates 0 from 1 only (hugely), measurement 2 all pairs moderately
+    mu3 = np.zeros((3, 3))
+    mu3[:, 1] = [0.0, 1.0, 0.0]
+    mu3[:, 2] = [0.0, 0.15, 0.3]
+    cov3 = np.zeros((3, 3, 3))
+    for obj in ("saturating", "min"):
+        assert dc.greedy_design(mu3, cov3, sigma, 1, obj)[0] == [2]
+    assert dc.greedy_design(mu3, cov3, sigma, 1, "sum")[0] == [1]
+    with pytest.raises(ValueError, match="objective"):
+        dc.greedy_design(mu3, cov3, sigma, 1, "max")
+
+
+def test_surface_pool_lies_on_the_head_and_skips_the_face(cfg, ctx_p2):
+    head = head_from_config(cfg)
+    s = dc.DiscriminateSettings()
+    sp = dc.surface_points(head, s)
+    P = sp[["px", "py", "pz"]].to_numpy()
+    N = sp[["nx", "ny", "nz"]].to_numpy()
+    assert all(abs(head.implicit(p) - 1) < 1e-9 for p in P)
+    assert np.allclose(np.linalg.norm(N, axis=1), 1) and np.all(((P - head.centre) * N).sum(axis=1) > 0)
+    assert len(sp) == 12 * 4 - 6                     # 30 deg x 4 elevations, minus 6 face points
+    pool = dc.measurement_pool(ctx_p2, head, s, cfg["geometry"]["plane_bands"])
+    assert (pool["kind"] == "repeat").sum() == ctx_p2.K
+    new = pool[pool["kind"] == "new"]
+    assert len(new) == 6 and np.allclose(new[["pz", "nz"]], 0)   # planar model: sagittal points only
+    assert np.allclose(np.linalg.norm(pool[[f"u_{c}" for c in ("Mx", "My", "Mz", "Fx", "Fy", "Fz")]], axis=1), 1)
+
+
+def test_proposal_appears_in_a_diagnosis_when_the_leaders_are_close(cfg, ctx_p2):
+    ctx = ctx_p2
+    rng = np.random.default_rng(3)
+    F = ctx.model.strengths[None] * np.exp(rng.normal(0, 0.2, (1, ctx.model.m)))
+    inst = compose(ctx, [EFFECTS["origin_offset"](ctx)], [np.array([0.015, -0.01])])
+    T = Simulator(ctx, inst).forces(F)[0] * np.exp(rng.normal(0, 0.03, ctx.K))
+    s = dg.DiagnosisSettings(effects=("origin_offset", "kinematic"), grid_points=3, folds=7, pairs_top=0,
+                             bootstrap=100, starts=1, reach_samples=0, reach_iter=0, fit=FitSettings(max_iter=10),
+                             seed=1)
+    diag = dg.diagnose(ctx, [dg.BlindData("x", T)], s)[0]
+    p_best = float(diag.effects.sort_values("rank")["p_best"].iloc[0])
+    head = head_from_config(cfg)
+    ds = discriminate_settings(cfg)
+    assert ds is not None and ds.p_best_below == 0.7 and ds.measurements == 3
+    # P(best) not below the threshold: nothing proposed, and the report says why
+    dc.attach_proposal(ctx, T, diag, head, dc.DiscriminateSettings(p_best_below=p_best), cfg["geometry"]["plane_bands"])
+    assert diag.discrimination.empty and not diag.summary["discrimination"]["proposed"]
+    assert "No additional measurements proposed" in "\n".join(_discrimination_lines(diag))
+    # below: a table of 3 measurements x 3 pairs of the top 3 candidates
+    s_on = dc.DiscriminateSettings(p_best_below=p_best + 0.01, fit=FitSettings(max_iter=10))
+    dc.attach_proposal(ctx, T, diag, head, s_on, cfg["geometry"]["plane_bands"])
+    tab, info = diag.discrimination, diag.summary["discrimination"]
+    assert info["proposed"] and info["candidates"] == list(diag.effects.sort_values("rank")["candidate"][:3])
+    assert sorted(set(tab["step"])) == [1, 2, 3] and len(tab) == 3 * (3 - len(info["indistinguishable_pairs"]))
+    pool = dc.measurement_pool(ctx, head, s_on, cfg["geometry"]["plane_bands"])
+    assert set(tab["measurement"]) <= set(pool["name"])
+    assert (tab[["elbf_if_a", "elbf_if_b"]].to_numpy() >= -1e-12).all()
+    last = tab[tab["step"] == 3]
+    assert (last["cum_elbf_if_a"].to_numpy() >= tab[tab["step"] == 1]["cum_elbf_if_a"].to_numpy() - 1e-9).all()
+    text = "\n".join(_discrimination_lines(diag))
+    assert "Which tests would tell the leading candidates apart" in text and info["measurements"][0] in text
