@@ -160,7 +160,7 @@ class JointPosterior:
     def _bounded(self, F: np.ndarray, i: int, bounds) -> np.ndarray:
         lb, ub = bounds
         w, _, st = solve(self.model, F, self.U[i:i + 1], np.asarray(lb)[None], np.asarray(ub)[None],
-                                    return_alpha=False, n_threads=self.n_threads)
+                         return_alpha=False, cache=self.cache, n_threads=self.n_threads)
         self.n_lps += w.size
         return np.where(st[:, 0] == _OPT, w[:, 0], 0.0)
 
