@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import time
@@ -100,6 +101,12 @@ def main(argv=None) -> int:
                         rows.append({"participant": p, "kind": kind, "true_ratio": float(definition.ratio(
                             fa[None], f0, names)[0]), "n": n, "replicate": r, "t": t,
                             "p_deficit": definition.probability(post.F, wts, f0, names),
+                            # Monte Carlo error estimates of P(deficit) from one candidate set: the genealogy
+                            # (JointPosterior.mc_se, shown by the session) and the naive sqrt(p (1 - p) / ESS)
+                            "p_se": post.mc_se(definition.ratio(post.F, f0, names) < definition.threshold),
+                            "p_se_ess": float(np.sqrt(max(definition.probability(post.F, wts, f0, names) * (
+                                1 - definition.probability(post.F, wts, f0, names)), 0.0)
+                                / (1.0 / (wts ** 2).sum()))),
                             "ratio_mean": float(wts @ definition.ratio(post.F, f0, names)),
                             "best_minus_truth_logpost": float(lpost.max() - (post.log_prior(fa[None])[0] + ll_truth)),
                             "mean_loglik": float(wts @ post.loglik), "truth_loglik": ll_truth})
@@ -114,8 +121,20 @@ def main(argv=None) -> int:
         mean_p = g.groupby("participant")["p_deficit"].mean()
         dist = float(np.abs(mean_p - ref.xs(t, level="t").reindex(mean_p.index)).mean())
         ratio_spread = g.groupby("participant")["ratio_mean"].agg(lambda x: x.max() - x.min()).mean()
+        # calibration of the printed Monte Carlo error: z = (p_1 - p_2) / sqrt(se_1^2 + se_2^2) between the first
+        # two candidate sets; rms z about 1 if the se is right, > 1 if it understates the error
+        z, z_ess = [], []
+        for _, gp in g.groupby("participant"):
+            if len(gp) >= 2:
+                a, b = gp.iloc[0], gp.iloc[1]
+                for col, zz in (("p_se", z), ("p_se_ess", z_ess)):
+                    den = math.hypot(a[col], b[col])
+                    zz.append((a["p_deficit"] - b["p_deficit"]) / den if den > 0 else
+                              (0.0 if a["p_deficit"] == b["p_deficit"] else np.inf))
         out.append({"n": n, "t": t, "p_spread_between_replicates": spread, "p_dist_to_largest_n": dist,
-                    "ratio_mean_spread": ratio_spread,
+                    "ratio_mean_spread": ratio_spread, "mean_p_se": float(g["p_se"].mean()),
+                    "rms_z_genealogy": float(np.sqrt(np.mean(np.square(z)))) if z else np.nan,
+                    "rms_z_ess": float(np.sqrt(np.mean(np.square(z_ess)))) if z_ess else np.nan,
                     "median_best_minus_truth_logpost": float(g["best_minus_truth_logpost"].median()),
                     "median_mean_loglik": float(g["mean_loglik"].median()),
                     "median_truth_loglik": float(g["truth_loglik"].median())})

@@ -790,10 +790,18 @@ class Session:
         more = "... -> " if len(tr) > 8 else ""
         how = (f"joint posterior, {self.settings.n_candidates} candidates" if self.joint
                else "thesis scheme, the group's muscles taken as independent")
-        return [f"P(deep-extensor deficit: {self.deficit.label()}) = {tr[-1]:.2f}   trend (prior -> now): "
-                f"{more}{arrows}",
-                f"  ({how}. NOT a calibrated probability: checked only on simulated participants of this model "
-                f"(how often it finds a deficit: docs/clinician.md), never under model misfit)"]
+        se = ""
+        if self.joint:
+            e = self.state.history[-1].get("p_deficit_se", float("nan"))
+            se = f" ± {e:.2f} (Monte Carlo error, 1 se)" if np.isfinite(e) else ""
+        out = [f"P(deep-extensor deficit: {self.deficit.label()}) = {tr[-1]:.2f}{se}   trend (prior -> now): "
+               f"{more}{arrows}",
+               f"  ({how}. NOT a calibrated probability: checked only on simulated participants of this model "
+               f"(how often it finds a deficit: docs/clinician.md), never under model misfit)"]
+        if se:
+            out.append("  (the ± is the Monte Carlo error of the candidates, from their genealogy; heuristic: it "
+                       "understates the spread between independent candidate sets, docs/clinician.md)")
+        return out
 
     def split(self, label: str) -> tuple[str, str]:
         """(posture, direction) of a test label ('neutral' for a plain direction)."""
@@ -853,6 +861,9 @@ class Session:
         traj = pd.DataFrame(rows)
         if pdef:
             traj["p_deficit"] = np.asarray(pdef)[traj["step"].to_numpy()]
+            if self.joint:
+                se = [h.get("p_deficit_se", np.nan) for h in self.state.history]
+                traj["p_deficit_mc_se"] = np.asarray(se)[traj["step"].to_numpy()]
         atomic_write_csv(traj, self.out / "steps.csv", hdr[:2], float_format="%.6g")
         meas = [r for r in self.entries if r["action"] == "measure"]
         mdf = pd.DataFrame({"direction": [r["direction"] for r in meas], "force_N": [r["force_N"] for r in meas],

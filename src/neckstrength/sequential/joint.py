@@ -131,6 +131,7 @@ class JointPosterior:
         self.n_lps = 0
         self.last_acceptance = float('nan')
         self.F = sample_prior(self.f0, settings.prior_sd_rel, settings.n_candidates, rng)
+        self.ancestor = np.arange(len(self.F))   # index of each candidate's draw at the last fresh draw (mc_se)
         self.log_iw = np.zeros(len(self.F))
         self.W = self._wrenches(self.F)
         self.loglik = np.zeros(len(self.F))
@@ -185,6 +186,25 @@ class JointPosterior:
     def ess_share(self) -> float:
         w = self.weights()
         return float(1.0 / (w ** 2).sum() / len(w))
+
+    def mc_se(self, h: np.ndarray) -> float:
+        """Monte Carlo standard error of the posterior mean ``sum_k w_k h_k`` of per-candidate values ``h``.
+
+        Since the last fresh draw (the prior, or the fitted proposal of the last resample) the candidates descend
+        from independent draws; the multinomial resampling and the Metropolis-Hastings moves of ``resample-move``
+        only copy and move them, each independently. The descendants of one draw form a cluster, the clusters are
+        independent given the proposal, and the self-normalised estimate's delta-method variance is
+        ``sum_c (W_c (hbar_c - hbar))^2`` (``W_c`` a cluster's normalised weight, ``hbar_c`` its weighted mean;
+        the genealogy estimator of Chan & Lai 2013 / Lee & Whiteley 2018 with the last fresh draw as the root).
+        It leaves out the error of the proposal itself (fitted from earlier candidates) and cannot see a mode no
+        candidate reached: benchmarks/bench_clinician.py compares it with the spread between independent
+        candidate sets (docs/clinician.md)."""
+        w = self.weights()
+        h = np.asarray(h, float)
+        mean = float(w @ h)
+        Wc = np.bincount(self.ancestor, weights=w, minlength=len(w))
+        Hc = np.bincount(self.ancestor, weights=w * h, minlength=len(w))
+        return float(np.sqrt(((Hc - mean * Wc) ** 2).sum()))
 
     def marginal_pdf(self, w: np.ndarray | None = None) -> np.ndarray:
         w = self.weights() if w is None else w
@@ -276,6 +296,7 @@ class JointPosterior:
         lp = self.log_prior(F)
         log_q = np.logaddexp(math.log1p(-s.defensive) + log_ln, math.log(s.defensive) + lp)
         self.F = F
+        self.ancestor = np.arange(N)        # fresh independent draws: each its own cluster (mc_se)
         self.log_iw = lp - log_q
         self.W = self._wrenches(F)
         self.loglik = self._loglik_all()
@@ -299,6 +320,7 @@ class JointPosterior:
         _, C = self._log_moments(w)
         idx = np.minimum(np.searchsorted(np.cumsum(w), self.rng.random(N) * w.sum(), side="right"), N - 1)
         F, W = self.F[idx], self.W[idx]
+        self.ancestor = self.ancestor[idx]
         logt = self.log_prior(F) + self._loglik_all_for(W)
         L = np.linalg.cholesky((2.38 ** 2 / m) * C)
         acc = 0
