@@ -40,8 +40,10 @@ class PostureJointPosterior(JointPosterior):
         self.start_posture = start_posture
         super().__init__(pset.neutral, labels, U, force_scale, f0, settings, rng, **kw)
 
-    def _solve_all(self, F: np.ndarray):
-        w, _, st = self.pset.wrenches(F, self.U, self.test_postures, cache=self.cache, n_threads=self.n_threads)
+    def _solve_all(self, F: np.ndarray, cols: np.ndarray | None = None):
+        cols = np.arange(len(self.U)) if cols is None else np.asarray(cols, int)
+        w, _, st = self.pset.wrenches(F, self.U[cols], [self.test_postures[i] for i in cols], cache=self.cache,
+                                      n_threads=self.n_threads)
         return w, st
 
     def _bounded(self, F: np.ndarray, i: int, bounds) -> np.ndarray:

@@ -144,19 +144,30 @@ class JointPosterior:
         return np.where(np.all(F > 0, axis=1), (-0.5 * z ** 2 + c).sum(axis=1), -np.inf)
 
     # -- wrenches
-    def _solve_all(self, F: np.ndarray):
-        """Max wrench of every candidate in every test (no activation bounds): w, status."""
-        w, _, st = solve(self.model, F, self.U, return_alpha=False, cache=self.cache, n_threads=self.n_threads)
+    def _solve_all(self, F: np.ndarray, cols: np.ndarray | None = None):
+        """Max wrench of every candidate in the tests ``cols`` (all if None; no activation bounds): w, status."""
+        U = self.U if cols is None else self.U[cols]
+        w, _, st = solve(self.model, F, U, return_alpha=False, cache=self.cache, n_threads=self.n_threads)
         return w, st
 
-    def _wrenches(self, F: np.ndarray) -> np.ndarray:
-        w, st = self._solve_all(F)
-        self.n_lps += w.size
-        W = np.where(st == _OPT, w, 0.0)
-        for t in self.tests:
-            if t["bounds"] is not None:
-                W[:, t["i"]] = self._bounded(F, t["i"], t["bounds"])
+    def _wrenches(self, F: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
+        """Max wrenches of candidates ``F`` (N x K) in the tests ``cols`` (all if None; the other columns NaN):
+        one batched solve over every candidate and every unbounded test, one per test with activation bounds."""
+        K = len(self.directions)
+        cols = np.arange(K) if cols is None else np.asarray(cols, int)
+        bounded = {t["i"]: t["bounds"] for t in self.tests if t["bounds"] is not None and t["i"] in set(cols)}
+        free = np.array([c for c in cols if c not in bounded], int)
+        W = np.full((len(F), K), np.nan)
+        if len(free):
+            w, st = self._solve_all(F, None if len(free) == K else free)
+            self.n_lps += w.size
+            W[:, free] = np.where(st == _OPT, w, 0.0)
+        for i, b in bounded.items():
+            W[:, i] = self._bounded(F, i, b)
         return W
+
+    def _tested_cols(self) -> np.ndarray:
+        return np.array(sorted({t["i"] for t in self.tests}), int)
 
     def _bounded(self, F: np.ndarray, i: int, bounds) -> np.ndarray:
         lb, ub = bounds
@@ -298,7 +309,9 @@ class JointPosterior:
         self.F = F
         self.ancestor = np.arange(N)        # fresh independent draws: each its own cluster (mc_se)
         self.log_iw = lp - log_q
-        self.W = self._wrenches(F)
+        # with moves to follow, the new candidates need only the tested directions (their weights); the others
+        # are solved once, after the moves, for the candidates that survive them (same numbers, fewer LPs)
+        self.W = self._wrenches(F, self._tested_cols() if s.n_moves > 0 else None)
         self.loglik = self._loglik_all()
         if s.n_moves > 0:
             self._move(s.n_moves)
@@ -321,18 +334,25 @@ class JointPosterior:
         idx = np.minimum(np.searchsorted(np.cumsum(w), self.rng.random(N) * w.sum(), side="right"), N - 1)
         F, W = self.F[idx], self.W[idx]
         self.ancestor = self.ancestor[idx]
+        origin = idx.copy()                   # rows with the same origin are copies of one candidate
+        tested = self._tested_cols()
         logt = self.log_prior(F) + self._loglik_all_for(W)
         L = np.linalg.cholesky((2.38 ** 2 / m) * C)
         acc = 0
-        for _ in range(n_moves):
+        for j in range(n_moves):
             Fp = F * np.exp(self.rng.standard_normal((N, m)) @ L.T)
-            Wp = self._wrenches(Fp)
+            Wp = self._wrenches(Fp, tested)     # the acceptance ratio needs the tested directions only
             logtp = self.log_prior(Fp) + self._loglik_all_for(Wp)
             # random walk in log f: the Jacobian of f = exp(y) enters the acceptance ratio
             a = np.log(self.rng.random(N)) < (logtp - logt + np.log(Fp).sum(axis=1) - np.log(F).sum(axis=1))
             F[a], W[a], logt[a] = Fp[a], Wp[a], logtp[a]
+            origin[a] = (j + 1) * N + np.flatnonzero(a)
             acc += int(a.sum())
         self.last_acceptance = acc / (N * n_moves)
+        rest = np.setdiff1d(np.arange(W.shape[1]), tested)
+        if len(rest):                         # the untested directions, once per distinct candidate
+            _, first, inv = np.unique(origin, return_index=True, return_inverse=True)
+            W[:, rest] = self._wrenches(F[first], rest)[:, rest][inv.ravel()]
         self.F, self.W = F, W
         self.loglik = self._loglik_all()
         self.log_iw = -self.loglik            # equal weights: the candidates are draws from the current target
