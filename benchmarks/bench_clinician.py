@@ -126,11 +126,11 @@ def main(argv=None) -> int:
         z, z_ess = [], []
         for _, gp in g.groupby("participant"):
             if len(gp) >= 2:
-                a, b = gp.iloc[0], gp.iloc[1]
+                r1, r2 = gp.iloc[0], gp.iloc[1]
                 for col, zz in (("p_se", z), ("p_se_ess", z_ess)):
-                    den = math.hypot(a[col], b[col])
-                    zz.append((a["p_deficit"] - b["p_deficit"]) / den if den > 0 else
-                              (0.0 if a["p_deficit"] == b["p_deficit"] else np.inf))
+                    den = math.hypot(r1[col], r2[col])
+                    zz.append((r1["p_deficit"] - r2["p_deficit"]) / den if den > 0 else
+                              (0.0 if r1["p_deficit"] == r2["p_deficit"] else np.inf))
         out.append({"n": n, "t": t, "p_spread_between_replicates": spread, "p_dist_to_largest_n": dist,
                     "ratio_mean_spread": ratio_spread, "mean_p_se": float(g["p_se"].mean()),
                     "rms_z_genealogy": float(np.sqrt(np.mean(np.square(z)))) if z else np.nan,
