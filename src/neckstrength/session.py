@@ -799,8 +799,8 @@ class Session:
                f"  ({how}. NOT a calibrated probability: checked only on simulated participants of this model "
                f"(how often it finds a deficit: docs/clinician.md), never under model misfit)"]
         if se:
-            out.append("  (the ± is the Monte Carlo error of the candidates, from their genealogy; heuristic: it "
-                       "understates the spread between independent candidate sets, docs/clinician.md)")
+            out.append("  (the ± is the Monte Carlo error of the candidates, from their genealogy; heuristic: "
+                       "independent candidate sets differed by 0.9-2 times it in the benchmark, docs/clinician.md)")
         return out
 
     def split(self, label: str) -> tuple[str, str]:
