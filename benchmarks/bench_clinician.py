@@ -12,11 +12,13 @@ probable as the truth, the candidates missed the posterior's high-density region
 log-likelihood of the candidates beside the truth's.
 
 "Stable" is read from two numbers per N: the spread of P(deficit) between the two candidate sets of the same
-participant (Monte Carlo error), and its distance from the largest N's answer.
+participant (Monte Carlo error), and its distance from the largest N's answer. The Monte Carlo error the session
+prints (``JointPosterior.mc_se``, from the candidates' genealogy) is checked against that spread: rms of
+z = (P_1 - P_2) / sqrt(se_1^2 + se_2^2), about 1 if it is right (also for the naive sqrt(P (1 - P) / ESS)).
 
 Run from the repository root (prints a table; ``--json`` also writes the rows)::
 
-    python benchmarks/bench_clinician.py --n 1000 2000 4000 8000 --participants 4
+    python benchmarks/bench_clinician.py --n 2000 4000 8000 20000 --participants 4
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", default="config/config.yaml")
     ap.add_argument("--model", default="s3m24")
-    ap.add_argument("--n", type=int, nargs="+", default=[1000, 2000, 4000, 8000])
+    ap.add_argument("--n", type=int, nargs="+", default=[2000, 4000, 8000, 20000])
     ap.add_argument("--participants", type=int, default=4, help="half with a deficit, half normal")
     ap.add_argument("--replicates", type=int, default=2)
     ap.add_argument("--n-max", type=int, default=25)
