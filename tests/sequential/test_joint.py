@@ -72,7 +72,7 @@ def test_mc_se_is_the_iid_error_before_resampling_and_tracks_the_spread_after(se
     """Monte Carlo error of a posterior mean (JointPosterior.mc_se, the session's ± on P(deficit)): on the prior
     draws it is the iid formula sd / sqrt(N); after resample-move (clusters of descendants of one draw) it is
     within a factor 2 of the spread of the same estimate between independent candidate sets."""
-    model, data, f0 = setup
+    _, data, f0 = setup
     post = _post(setup, n=4000, seed=5)
     h = (post.F[:, 0] < f0[0]).astype(float)
     assert post.mc_se(h) == pytest.approx(h.std() / math.sqrt(len(h)), rel=1e-9)
