@@ -159,7 +159,7 @@ class JointPosterior:
         free = np.array([c for c in cols if c not in bounded], int)
         W = np.full((len(F), K), np.nan)
         if len(free):
-            w, st = self._solve_all(F, None if len(free) == K else free)
+            w, st = self._solve_all(F, None if np.array_equal(free, np.arange(K)) else free)
             self.n_lps += w.size
             W[:, free] = np.where(st == _OPT, w, 0.0)
         for i, b in bounded.items():
