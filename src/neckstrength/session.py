@@ -792,8 +792,12 @@ class Session:
                else "thesis scheme, the group's muscles taken as independent")
         se = ""
         if self.joint:
-            e = self.state.history[-1].get("p_deficit_se", float("nan"))
+            h = self.state.history[-1]
+            e, k = h.get("p_deficit_se", float("nan")), h.get("mc_clusters", float("nan"))
             se = f" ± {e:.2f} (Monte Carlo error, 1 se)" if np.isfinite(e) else ""
+            if se and k < MIN_MC_CLUSTERS:
+                se = (f" ± ? (Monte Carlo error unknown: the candidates descend from about {k:.0f} independent "
+                      "draws; the sampler has collapsed, do not trust this value)")
         out = [f"P(deep-extensor deficit: {self.deficit.label()}) = {tr[-1]:.2f}{se}   trend (prior -> now): "
                f"{more}{arrows}",
                f"  ({how}. NOT a calibrated probability: checked only on simulated participants of this model "
@@ -910,6 +914,9 @@ def _summary_figure(traj: pd.DataFrame, est: pd.DataFrame, path: Path, title: st
     fig.savefig(tmp, dpi=110)
     plt.close(fig)
     os.replace(tmp, path)
+
+
+MIN_MC_CLUSTERS = 10     # below this effective number of independent draws the Monte Carlo error is not shown
 
 
 def run_interactive(session: Session, input_fn: Callable[[str], str] = input, out=sys.stdout) -> int:

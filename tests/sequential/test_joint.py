@@ -76,6 +76,9 @@ def test_mc_se_is_the_iid_error_before_resampling_and_tracks_the_spread_after(se
     post = _post(setup, n=4000, seed=5)
     h = (post.F[:, 0] < f0[0]).astype(float)
     assert post.mc_se(h) == pytest.approx(h.std() / math.sqrt(len(h)), rel=1e-9)
+    assert post.mc_clusters() == pytest.approx(len(h))
+    post.ancestor = np.zeros_like(post.ancestor)      # every candidate a copy of one draw: no error estimate
+    assert post.mc_clusters() == pytest.approx(1.0) and post.mc_se(h) == pytest.approx(0.0, abs=1e-12)
     est, se = [], []
     for seed in range(12):
         post = _post(setup, n=1500, seed=100 + seed, resample_ess=0.3)

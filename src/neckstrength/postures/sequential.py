@@ -50,7 +50,8 @@ class PostureJointPosterior(JointPosterior):
         lb, ub = bounds
         p = self.test_postures[i]
         w, _, st = solve(self.pset.models[p], F * self.pset.rho[p][None, :], self.U[i:i + 1], np.asarray(lb)[None],
-                         np.asarray(ub)[None], return_alpha=False, cache=self.cache, n_threads=self.n_threads)
+                         np.asarray(ub)[None], return_alpha=False, cache=self.bounded_cache,
+                         n_threads=self.n_threads)
         self.n_lps += w.size
         return np.where(st[:, 0] == _OPT, w[:, 0], 0.0)
 

@@ -124,6 +124,9 @@ class JointPosterior:
         self.rng = rng
         self.n_threads = n_threads
         self.cache = BasisCache() if cache is None else cache   # share between runs on one model: bases reused
+        # directions with activation bounds: bounds differ per participant, so their bases live with this
+        # posterior (kept across its steps; a cache shared over many participants would only grow)
+        self.bounded_cache = BasisCache()
         self.progress = progress
         self.grid = StrengthGrid.around(self.f0, settings.prior_sd_rel, settings.n_bins, settings.bin_range_sd)
         self.tests: list[dict] = []
@@ -172,7 +175,7 @@ class JointPosterior:
     def _bounded(self, F: np.ndarray, i: int, bounds) -> np.ndarray:
         lb, ub = bounds
         w, _, st = solve(self.model, F, self.U[i:i + 1], np.asarray(lb)[None], np.asarray(ub)[None],
-                         return_alpha=False, cache=self.cache, n_threads=self.n_threads)
+                         return_alpha=False, cache=self.bounded_cache, n_threads=self.n_threads)
         self.n_lps += w.size
         return np.where(st[:, 0] == _OPT, w[:, 0], 0.0)
 
@@ -216,6 +219,12 @@ class JointPosterior:
         Wc = np.bincount(self.ancestor, weights=w, minlength=len(w))
         Hc = np.bincount(self.ancestor, weights=w * h, minlength=len(w))
         return float(np.sqrt(((Hc - mean * Wc) ** 2).sum()))
+
+    def mc_clusters(self) -> float:
+        """Effective number of independent draws the candidates descend from, ``1 / sum_c W_c^2`` (see
+        :meth:`mc_se`; below about 10 the Monte Carlo error estimate is not to be trusted: at 1 it is 0)."""
+        Wc = np.bincount(self.ancestor, weights=self.weights(), minlength=len(self.F))
+        return float(1.0 / (Wc ** 2).sum())
 
     def marginal_pdf(self, w: np.ndarray | None = None) -> np.ndarray:
         w = self.weights() if w is None else w

@@ -108,7 +108,7 @@ class JointState:
     def _summary(self, p: _Pending | None) -> dict:
         return {"direction": "" if p is None else p.direction, "force": np.nan if p is None else p.force,
                 "estimate": self.estimate(), "p_deficit": self.p_deficit(),
-                "p_deficit_se": self.p_deficit_se()}
+                "p_deficit_se": self.p_deficit_se(), "mc_clusters": self.post.mc_clusters()}
 
     # -- updates
     def likelihood(self, direction: str, force: float, activations=None) -> _Pending:
