@@ -12,17 +12,20 @@ probable as the truth, the candidates missed the posterior's high-density region
 log-likelihood of the candidates beside the truth's.
 
 "Stable" is read from two numbers per N: the spread of P(deficit) between the two candidate sets of the same
-participant (Monte Carlo error), and its distance from the largest N's answer.
+participant (Monte Carlo error), and its distance from the largest N's answer. The Monte Carlo error the session
+prints (``JointPosterior.mc_se``, from the candidates' genealogy) is checked against that spread: rms of
+z = (P_1 - P_2) / sqrt(se_1^2 + se_2^2), about 1 if it is right (also for the naive sqrt(P (1 - P) / ESS)).
 
 Run from the repository root (prints a table; ``--json`` also writes the rows)::
 
-    python benchmarks/bench_clinician.py --n 1000 2000 4000 8000 --participants 4
+    python benchmarks/bench_clinician.py --n 2000 4000 8000 20000 --participants 4
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import time
@@ -50,7 +53,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", default="config/config.yaml")
     ap.add_argument("--model", default="s3m24")
-    ap.add_argument("--n", type=int, nargs="+", default=[1000, 2000, 4000, 8000])
+    ap.add_argument("--n", type=int, nargs="+", default=[2000, 4000, 8000, 20000])
     ap.add_argument("--participants", type=int, default=4, help="half with a deficit, half normal")
     ap.add_argument("--replicates", type=int, default=2)
     ap.add_argument("--n-max", type=int, default=25)
@@ -100,6 +103,12 @@ def main(argv=None) -> int:
                         rows.append({"participant": p, "kind": kind, "true_ratio": float(definition.ratio(
                             fa[None], f0, names)[0]), "n": n, "replicate": r, "t": t,
                             "p_deficit": definition.probability(post.F, wts, f0, names),
+                            # Monte Carlo error estimates of P(deficit) from one candidate set: the genealogy
+                            # (JointPosterior.mc_se, shown by the session) and the naive sqrt(p (1 - p) / ESS)
+                            "p_se": post.mc_se(definition.ratio(post.F, f0, names) < definition.threshold),
+                            "p_se_ess": float(np.sqrt(max(definition.probability(post.F, wts, f0, names) * (
+                                1 - definition.probability(post.F, wts, f0, names)), 0.0)
+                                / (1.0 / (wts ** 2).sum()))),
                             "ratio_mean": float(wts @ definition.ratio(post.F, f0, names)),
                             "best_minus_truth_logpost": float(lpost.max() - (post.log_prior(fa[None])[0] + ll_truth)),
                             "mean_loglik": float(wts @ post.loglik), "truth_loglik": ll_truth})
@@ -114,8 +123,20 @@ def main(argv=None) -> int:
         mean_p = g.groupby("participant")["p_deficit"].mean()
         dist = float(np.abs(mean_p - ref.xs(t, level="t").reindex(mean_p.index)).mean())
         ratio_spread = g.groupby("participant")["ratio_mean"].agg(lambda x: x.max() - x.min()).mean()
+        # calibration of the printed Monte Carlo error: z = (p_1 - p_2) / sqrt(se_1^2 + se_2^2) between the first
+        # two candidate sets; rms z about 1 if the se is right, > 1 if it understates the error
+        z, z_ess = [], []
+        for _, gp in g.groupby("participant"):
+            if len(gp) >= 2:
+                r1, r2 = gp.iloc[0], gp.iloc[1]
+                for col, zz in (("p_se", z), ("p_se_ess", z_ess)):
+                    den = math.hypot(r1[col], r2[col])
+                    zz.append((r1["p_deficit"] - r2["p_deficit"]) / den if den > 0 else
+                              (0.0 if r1["p_deficit"] == r2["p_deficit"] else np.inf))
         out.append({"n": n, "t": t, "p_spread_between_replicates": spread, "p_dist_to_largest_n": dist,
-                    "ratio_mean_spread": ratio_spread,
+                    "ratio_mean_spread": ratio_spread, "mean_p_se": float(g["p_se"].mean()),
+                    "rms_z_genealogy": float(np.sqrt(np.mean(np.square(z)))) if z else np.nan,
+                    "rms_z_ess": float(np.sqrt(np.mean(np.square(z_ess)))) if z_ess else np.nan,
                     "median_best_minus_truth_logpost": float(g["best_minus_truth_logpost"].median()),
                     "median_mean_loglik": float(g["mean_loglik"].median()),
                     "median_truth_loglik": float(g["truth_loglik"].median())})

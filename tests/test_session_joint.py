@@ -40,12 +40,18 @@ def test_s3m24_session_defaults_to_joint_eig_and_shows_deficit_trend(tmp_path):
     assert "P(deep-extensor deficit: mf < 60% of baseline)" in text and "NOT a calibrated probability" in text
     last = text.rsplit("P(deep-extensor deficit", 1)[1].split("\n")[0]
     assert last.count("->") == 3 and "trend (prior -> now)" in last     # prior + 2 measurements after the undo
+    # the Monte Carlo error, or '?' when the candidates descend from fewer than 10 draws (here, with N 300 and
+    # forces the model fits badly, they do)
+    k = s.state.history[-1]["mc_clusters"]
+    assert ("(Monte Carlo error, 1 se)" in last) == (k >= 10) and ("± ? (Monte Carlo error unknown" in last) == (k < 10)
+    assert "(Monte Carlo error, 1 se)" in text and "heuristic" in text      # earlier screens had one
     assert len(s.state.tested) == 2
     r = Session.resume(out, progress=lambda x: None)
     assert r.render().split("===", 2)[2] == s.render().split("===", 2)[2]   # same proposal, estimate, P(deficit)
     r.write_summary()
     steps = pd.read_csv(out / "steps.csv", comment="#")
     assert sorted(steps["step"].unique()) == [0, 1, 2] and steps["p_deficit"].between(0, 1).all()
+    assert steps["p_deficit_mc_se"].between(0, 0.5).all()
 
 
 def test_s3m24_thesis_criterion_stays_available(tmp_path):

@@ -790,10 +790,22 @@ class Session:
         more = "... -> " if len(tr) > 8 else ""
         how = (f"joint posterior, {self.settings.n_candidates} candidates" if self.joint
                else "thesis scheme, the group's muscles taken as independent")
-        return [f"P(deep-extensor deficit: {self.deficit.label()}) = {tr[-1]:.2f}   trend (prior -> now): "
-                f"{more}{arrows}",
-                f"  ({how}. NOT a calibrated probability: checked only on simulated participants of this model "
-                f"(how often it finds a deficit: docs/clinician.md), never under model misfit)"]
+        se = ""
+        if self.joint:
+            h = self.state.history[-1]
+            e, k = h.get("p_deficit_se", float("nan")), h.get("mc_clusters", float("nan"))
+            se = f" ± {e:.2f} (Monte Carlo error, 1 se)" if np.isfinite(e) else ""
+            if se and k < MIN_MC_CLUSTERS:
+                se = (f" ± ? (Monte Carlo error unknown: the candidates descend from about {k:.0f} independent "
+                      "draws; the sampler has collapsed, do not trust this value)")
+        out = [f"P(deep-extensor deficit: {self.deficit.label()}) = {tr[-1]:.2f}{se}   trend (prior -> now): "
+               f"{more}{arrows}",
+               f"  ({how}. NOT a calibrated probability: checked only on simulated participants of this model "
+               f"(how often it finds a deficit: docs/clinician.md), never under model misfit)"]
+        if se:
+            out.append("  (the ± is the Monte Carlo error of the candidates, from their genealogy; heuristic: "
+                       "independent candidate sets differed by 0.9-2 times it in the benchmark, docs/clinician.md)")
+        return out
 
     def split(self, label: str) -> tuple[str, str]:
         """(posture, direction) of a test label ('neutral' for a plain direction)."""
@@ -853,6 +865,9 @@ class Session:
         traj = pd.DataFrame(rows)
         if pdef:
             traj["p_deficit"] = np.asarray(pdef)[traj["step"].to_numpy()]
+            if self.joint:
+                se = [h.get("p_deficit_se", np.nan) for h in self.state.history]
+                traj["p_deficit_mc_se"] = np.asarray(se)[traj["step"].to_numpy()]
         atomic_write_csv(traj, self.out / "steps.csv", hdr[:2], float_format="%.6g")
         meas = [r for r in self.entries if r["action"] == "measure"]
         mdf = pd.DataFrame({"direction": [r["direction"] for r in meas], "force_N": [r["force_N"] for r in meas],
@@ -899,6 +914,9 @@ def _summary_figure(traj: pd.DataFrame, est: pd.DataFrame, path: Path, title: st
     fig.savefig(tmp, dpi=110)
     plt.close(fig)
     os.replace(tmp, path)
+
+
+MIN_MC_CLUSTERS = 10     # below this effective number of independent draws the Monte Carlo error is not shown
 
 
 def run_interactive(session: Session, input_fn: Callable[[str], str] = input, out=sys.stdout) -> int:

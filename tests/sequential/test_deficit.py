@@ -86,6 +86,9 @@ def test_joint_state_undo_restores_and_equals_replay(p2m7_full_config):
     assert a.tested == b.tested == ["back", "chinFront"]
     assert np.array_equal(a.post.F, b.post.F) and np.allclose(a.post.weights(), b.post.weights())
     assert [h["p_deficit"] for h in a.history] == pytest.approx([h["p_deficit"] for h in b.history])
+    assert np.array_equal(a.post.ancestor, b.post.ancestor)
+    assert [h["p_deficit_se"] for h in a.history] == pytest.approx([h["p_deficit_se"] for h in b.history])
+    assert all(0 <= h["p_deficit_se"] <= 0.5 for h in a.history)
     with pytest.raises(ValueError, match="already been tested"):
         a.likelihood("back", 100.0)
     with pytest.raises(ValueError, match="positive"):

@@ -68,6 +68,30 @@ def test_resampling_weights_are_unbiased(setup):
     assert np.all(np.abs(e1["f_c"] - post.estimate()["f_c"]) < 0.25 * e1["sd_c"])
 
 
+def test_mc_se_is_the_iid_error_before_resampling_and_tracks_the_spread_after(setup):
+    """Monte Carlo error of a posterior mean (JointPosterior.mc_se, the session's ± on P(deficit)): on the prior
+    draws it is the iid formula sd / sqrt(N); after resample-move (clusters of descendants of one draw) it is
+    within a factor 2 of the spread of the same estimate between independent candidate sets."""
+    _, data, f0 = setup
+    post = _post(setup, n=4000, seed=5)
+    h = (post.F[:, 0] < f0[0]).astype(float)
+    assert post.mc_se(h) == pytest.approx(h.std() / math.sqrt(len(h)), rel=1e-9)
+    assert post.mc_clusters() == pytest.approx(len(h))
+    post.ancestor = np.zeros_like(post.ancestor)      # every candidate a copy of one draw: no error estimate
+    assert post.mc_clusters() == pytest.approx(1.0) and post.mc_se(h) == pytest.approx(0.0, abs=1e-12)
+    est, se = [], []
+    for seed in range(12):
+        post = _post(setup, n=1500, seed=100 + seed, resample_ess=0.3)
+        for d in ("back", "chinFront", "forehead"):
+            post.update(d, 1.15 * data.forces[data.directions.index(d)])
+        assert post.n_resamples > 0 and len(np.unique(post.ancestor)) < len(post.ancestor)
+        h = (post.F[:, 0] < f0[0]).astype(float)
+        est.append(float(post.weights() @ h))
+        se.append(post.mc_se(h))
+    ratio = float(np.std(est, ddof=1) / np.sqrt(np.mean(np.square(se))))
+    assert 0.5 < ratio < 2.0, ratio
+
+
 def test_information_gain_gaussian_case(setup):
     """For log w ~ N(mu, s^2) and Gaussian log-noise sd, I(f; y) = 0.5 log(1 + s^2 / sd^2)."""
     post = _post(setup, n=1000)

@@ -40,15 +40,18 @@ class PostureJointPosterior(JointPosterior):
         self.start_posture = start_posture
         super().__init__(pset.neutral, labels, U, force_scale, f0, settings, rng, **kw)
 
-    def _solve_all(self, F: np.ndarray):
-        w, _, st = self.pset.wrenches(F, self.U, self.test_postures, cache=self.cache, n_threads=self.n_threads)
+    def _solve_all(self, F: np.ndarray, cols: np.ndarray | None = None):
+        cols = np.arange(len(self.U)) if cols is None else np.asarray(cols, int)
+        w, _, st = self.pset.wrenches(F, self.U[cols], [self.test_postures[i] for i in cols], cache=self.cache,
+                                      n_threads=self.n_threads)
         return w, st
 
     def _bounded(self, F: np.ndarray, i: int, bounds) -> np.ndarray:
         lb, ub = bounds
         p = self.test_postures[i]
         w, _, st = solve(self.pset.models[p], F * self.pset.rho[p][None, :], self.U[i:i + 1], np.asarray(lb)[None],
-                         np.asarray(ub)[None], return_alpha=False, n_threads=self.n_threads)
+                         np.asarray(ub)[None], return_alpha=False, cache=self.bounded_cache,
+                         n_threads=self.n_threads)
         self.n_lps += w.size
         return np.where(st[:, 0] == _OPT, w[:, 0], 0.0)
 

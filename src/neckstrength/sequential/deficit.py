@@ -252,7 +252,9 @@ def run_deficit_study(model: ReducedModel, directions: Sequence[str], U: np.ndar
 def _record(post: JointPosterior, definition: DeficitDefinition, f0: np.ndarray, names: Sequence[str], base: dict,
             t: int, direction: str) -> dict:
     w = post.weights()
+    below = definition.ratio(post.F, f0, names) < definition.threshold
     return {**base, "t": t, "direction": direction, "p_deficit": definition.probability(post.F, w, f0, names),
+            "p_deficit_mc_se": post.mc_se(below),
             "ratio_mean": float(w @ definition.ratio(post.F, f0, names)), "ess_share": post.ess_share(),
             "n_resamples": post.n_resamples}
 

@@ -124,6 +124,9 @@ class JointPosterior:
         self.rng = rng
         self.n_threads = n_threads
         self.cache = BasisCache() if cache is None else cache   # share between runs on one model: bases reused
+        # directions with activation bounds: bounds differ per participant, so their bases live with this
+        # posterior (kept across its steps; a cache shared over many participants would only grow)
+        self.bounded_cache = BasisCache()
         self.progress = progress
         self.grid = StrengthGrid.around(self.f0, settings.prior_sd_rel, settings.n_bins, settings.bin_range_sd)
         self.tests: list[dict] = []
@@ -131,6 +134,7 @@ class JointPosterior:
         self.n_lps = 0
         self.last_acceptance = float('nan')
         self.F = sample_prior(self.f0, settings.prior_sd_rel, settings.n_candidates, rng)
+        self.ancestor = np.arange(len(self.F))   # index of each candidate's draw at the last fresh draw (mc_se)
         self.log_iw = np.zeros(len(self.F))
         self.W = self._wrenches(self.F)
         self.loglik = np.zeros(len(self.F))
@@ -143,24 +147,35 @@ class JointPosterior:
         return np.where(np.all(F > 0, axis=1), (-0.5 * z ** 2 + c).sum(axis=1), -np.inf)
 
     # -- wrenches
-    def _solve_all(self, F: np.ndarray):
-        """Max wrench of every candidate in every test (no activation bounds): w, status."""
-        w, _, st = solve(self.model, F, self.U, return_alpha=False, cache=self.cache, n_threads=self.n_threads)
+    def _solve_all(self, F: np.ndarray, cols: np.ndarray | None = None):
+        """Max wrench of every candidate in the tests ``cols`` (all if None; no activation bounds): w, status."""
+        U = self.U if cols is None else self.U[cols]
+        w, _, st = solve(self.model, F, U, return_alpha=False, cache=self.cache, n_threads=self.n_threads)
         return w, st
 
-    def _wrenches(self, F: np.ndarray) -> np.ndarray:
-        w, st = self._solve_all(F)
-        self.n_lps += w.size
-        W = np.where(st == _OPT, w, 0.0)
-        for t in self.tests:
-            if t["bounds"] is not None:
-                W[:, t["i"]] = self._bounded(F, t["i"], t["bounds"])
+    def _wrenches(self, F: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
+        """Max wrenches of candidates ``F`` (N x K) in the tests ``cols`` (all if None; the other columns NaN):
+        one batched solve over every candidate and every unbounded test, one per test with activation bounds."""
+        K = len(self.directions)
+        cols = np.arange(K) if cols is None else np.asarray(cols, int)
+        bounded = {t["i"]: t["bounds"] for t in self.tests if t["bounds"] is not None and t["i"] in set(cols)}
+        free = np.array([c for c in cols if c not in bounded], int)
+        W = np.full((len(F), K), np.nan)
+        if len(free):
+            w, st = self._solve_all(F, None if np.array_equal(free, np.arange(K)) else free)
+            self.n_lps += w.size
+            W[:, free] = np.where(st == _OPT, w, 0.0)
+        for i, b in bounded.items():
+            W[:, i] = self._bounded(F, i, b)
         return W
+
+    def _tested_cols(self) -> np.ndarray:
+        return np.array(sorted({t["i"] for t in self.tests}), int)
 
     def _bounded(self, F: np.ndarray, i: int, bounds) -> np.ndarray:
         lb, ub = bounds
         w, _, st = solve(self.model, F, self.U[i:i + 1], np.asarray(lb)[None], np.asarray(ub)[None],
-                                    return_alpha=False, n_threads=self.n_threads)
+                         return_alpha=False, cache=self.bounded_cache, n_threads=self.n_threads)
         self.n_lps += w.size
         return np.where(st[:, 0] == _OPT, w[:, 0], 0.0)
 
@@ -185,6 +200,31 @@ class JointPosterior:
     def ess_share(self) -> float:
         w = self.weights()
         return float(1.0 / (w ** 2).sum() / len(w))
+
+    def mc_se(self, h: np.ndarray) -> float:
+        """Monte Carlo standard error of the posterior mean ``sum_k w_k h_k`` of per-candidate values ``h``.
+
+        Since the last fresh draw (the prior, or the fitted proposal of the last resample) the candidates descend
+        from independent draws; the multinomial resampling and the Metropolis-Hastings moves of ``resample-move``
+        only copy and move them, each independently. The descendants of one draw form a cluster, the clusters are
+        independent given the proposal, and the self-normalised estimate's delta-method variance is
+        ``sum_c (W_c (hbar_c - hbar))^2`` (``W_c`` a cluster's normalised weight, ``hbar_c`` its weighted mean;
+        the genealogy estimator of Chan & Lai 2013 / Lee & Whiteley 2018 with the last fresh draw as the root).
+        It leaves out the error of the proposal itself (fitted from earlier candidates) and cannot see a mode no
+        candidate reached: benchmarks/bench_clinician.py compares it with the spread between independent
+        candidate sets (docs/clinician.md)."""
+        w = self.weights()
+        h = np.asarray(h, float)
+        mean = float(w @ h)
+        Wc = np.bincount(self.ancestor, weights=w, minlength=len(w))
+        Hc = np.bincount(self.ancestor, weights=w * h, minlength=len(w))
+        return float(np.sqrt(((Hc - mean * Wc) ** 2).sum()))
+
+    def mc_clusters(self) -> float:
+        """Effective number of independent draws the candidates descend from, ``1 / sum_c W_c^2`` (see
+        :meth:`mc_se`; below about 10 the Monte Carlo error estimate is not to be trusted: at 1 it is 0)."""
+        Wc = np.bincount(self.ancestor, weights=self.weights(), minlength=len(self.F))
+        return float(1.0 / (Wc ** 2).sum())
 
     def marginal_pdf(self, w: np.ndarray | None = None) -> np.ndarray:
         w = self.weights() if w is None else w
@@ -276,8 +316,11 @@ class JointPosterior:
         lp = self.log_prior(F)
         log_q = np.logaddexp(math.log1p(-s.defensive) + log_ln, math.log(s.defensive) + lp)
         self.F = F
+        self.ancestor = np.arange(N)        # fresh independent draws: each its own cluster (mc_se)
         self.log_iw = lp - log_q
-        self.W = self._wrenches(F)
+        # with moves to follow, the new candidates need only the tested directions (their weights); the others
+        # are solved once, after the moves, for the candidates that survive them (same numbers, fewer LPs)
+        self.W = self._wrenches(F, self._tested_cols() if s.n_moves > 0 else None)
         self.loglik = self._loglik_all()
         if s.n_moves > 0:
             self._move(s.n_moves)
@@ -299,18 +342,26 @@ class JointPosterior:
         _, C = self._log_moments(w)
         idx = np.minimum(np.searchsorted(np.cumsum(w), self.rng.random(N) * w.sum(), side="right"), N - 1)
         F, W = self.F[idx], self.W[idx]
+        self.ancestor = self.ancestor[idx]
+        origin = idx.copy()                   # rows with the same origin are copies of one candidate
+        tested = self._tested_cols()
         logt = self.log_prior(F) + self._loglik_all_for(W)
         L = np.linalg.cholesky((2.38 ** 2 / m) * C)
         acc = 0
-        for _ in range(n_moves):
+        for j in range(n_moves):
             Fp = F * np.exp(self.rng.standard_normal((N, m)) @ L.T)
-            Wp = self._wrenches(Fp)
+            Wp = self._wrenches(Fp, tested)     # the acceptance ratio needs the tested directions only
             logtp = self.log_prior(Fp) + self._loglik_all_for(Wp)
             # random walk in log f: the Jacobian of f = exp(y) enters the acceptance ratio
             a = np.log(self.rng.random(N)) < (logtp - logt + np.log(Fp).sum(axis=1) - np.log(F).sum(axis=1))
             F[a], W[a], logt[a] = Fp[a], Wp[a], logtp[a]
+            origin[a] = (j + 1) * N + np.flatnonzero(a)
             acc += int(a.sum())
         self.last_acceptance = acc / (N * n_moves)
+        rest = np.setdiff1d(np.arange(W.shape[1]), tested)
+        if len(rest):                         # the untested directions, once per distinct candidate
+            _, first, inv = np.unique(origin, return_index=True, return_inverse=True)
+            W[:, rest] = self._wrenches(F[first], rest)[:, rest][inv.ravel()]
         self.F, self.W = F, W
         self.loglik = self._loglik_all()
         self.log_iw = -self.loglik            # equal weights: the candidates are draws from the current target

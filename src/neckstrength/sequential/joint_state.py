@@ -95,12 +95,20 @@ class JointState:
             return float("nan")
         return self.deficit.probability(self.post.F, self.post.weights(), self.post.f0, self.model.muscle_names)
 
+    def p_deficit_se(self) -> float:
+        """Monte Carlo standard error of :meth:`p_deficit` (:meth:`JointPosterior.mc_se`; not a posterior width)."""
+        if self.deficit is None:
+            return float("nan")
+        below = self.deficit.ratio(self.post.F, self.post.f0, self.model.muscle_names) < self.deficit.threshold
+        return self.post.mc_se(below)
+
     def estimate(self) -> pd.DataFrame:
         return self.post.estimate()
 
     def _summary(self, p: _Pending | None) -> dict:
         return {"direction": "" if p is None else p.direction, "force": np.nan if p is None else p.force,
-                "estimate": self.estimate(), "p_deficit": self.p_deficit()}
+                "estimate": self.estimate(), "p_deficit": self.p_deficit(),
+                "p_deficit_se": self.p_deficit_se(), "mc_clusters": self.post.mc_clusters()}
 
     # -- updates
     def likelihood(self, direction: str, force: float, activations=None) -> _Pending:
@@ -116,7 +124,8 @@ class JointState:
 
     def push(self, p: _Pending) -> None:
         post = self.post
-        self._snaps.append({"F": post.F.copy(), "W": post.W.copy(), "log_iw": post.log_iw.copy(),
+        self._snaps.append({"F": post.F.copy(), "ancestor": post.ancestor.copy(), "W": post.W.copy(),
+                            "log_iw": post.log_iw.copy(),
                             "loglik": post.loglik.copy(), "tests": [dict(t) for t in post.tests],
                             "n_resamples": post.n_resamples, "n_lps": post.n_lps,
                             "last_acceptance": post.last_acceptance,
@@ -137,6 +146,7 @@ class JointState:
     def _restore(self, s: dict) -> None:
         post = self.post
         post.F, post.W, post.log_iw, post.loglik = s["F"], s["W"], s["log_iw"], s["loglik"]
+        post.ancestor = s["ancestor"]
         post.tests = s["tests"]
         post.n_resamples, post.n_lps, post.last_acceptance = s["n_resamples"], s["n_lps"], s["last_acceptance"]
         post.rng.bit_generator.state = s["rng"]
