@@ -1,12 +1,9 @@
 """Calibrated gap decision (issue 17): noise-only null, remainder test, power per effect, resumable results."""
 
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 import pytest
 
-from neckstrength.config import build_directions, gap_context, load_config
 from neckstrength.gap import calibrate as cb
 from neckstrength.gap import diagnose as dg
 from neckstrength.gap.benchmark import accuracy_table
@@ -14,16 +11,6 @@ from neckstrength.gap.effects import EFFECTS, base_instance, compose
 from neckstrength.gap.engine import CalibrationSettings
 from neckstrength.gap.fit import FitSettings, Simulator
 from neckstrength.gap.store import ResultStore
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="module")
-def ctx_p2():
-    c = load_config(ROOT / "config" / "config.yaml")
-    c["data"] = {k: str(ROOT / v) for k, v in c["data"].items()}
-    c["geometry"]["test_point_spec"] = str(ROOT / c["geometry"]["test_point_spec"])
-    return gap_context(c, "p2m7", build_directions(c))
 
 
 def _settings(**cal):

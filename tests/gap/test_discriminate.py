@@ -1,32 +1,15 @@
 """Which additional measurements tell the leading candidates apart (issue 17, item 5): expected log Bayes factor,
 greedy design, the measurement pool, and the proposal in a diagnosis."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-from neckstrength.config import build_directions, discriminate_settings, gap_context, head_from_config, load_config
+from neckstrength.config import discriminate_settings, head_from_config
 from neckstrength.gap import diagnose as dg
 from neckstrength.gap import discriminate as dc
 from neckstrength.gap.effects import EFFECTS, compose
 from neckstrength.gap.fit import FitSettings, Simulator
 from neckstrength.gap.report import _discrimination_lines
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="module")
-def cfg():
-    c = load_config(ROOT / "config" / "config.yaml")
-    c["data"] = {k: str(ROOT / v) for k, v in c["data"].items()}
-    c["geometry"]["test_point_spec"] = str(ROOT / c["geometry"]["test_point_spec"])
-    return c
-
-
-@pytest.fixture(scope="module")
-def ctx_p2(cfg):
-    return gap_context(cfg, "p2m7", build_directions(cfg))
 
 
 def test_expected_log_bf_is_zero_for_equal_predictions_and_grows_with_their_difference():

@@ -2,43 +2,16 @@
 
 import inspect
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from neckstrength.config import build_directions, gap_context, load_config
 from neckstrength.gap import benchmark as bm
 from neckstrength.gap import diagnose as dg
 from neckstrength.gap.effects import EFFECTS, Effect, Param, available_effects, base_instance, compose
 from neckstrength.gap.fit import FitSettings, Simulator, fit_strengths, start_point
 from neckstrength.model.full import COORDINATES
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="module")
-def cfg():
-    c = load_config(ROOT / "config" / "config.yaml")
-    c["data"] = {k: str(ROOT / v) for k, v in c["data"].items()}
-    c["geometry"]["test_point_spec"] = str(ROOT / c["geometry"]["test_point_spec"])
-    return c
-
-
-@pytest.fixture(scope="module")
-def directions(cfg):
-    return build_directions(cfg)
-
-
-@pytest.fixture(scope="module")
-def ctx_s3(cfg, directions):
-    return gap_context(cfg, "s3m24", directions)
-
-
-@pytest.fixture(scope="module")
-def ctx_p2(cfg, directions):
-    return gap_context(cfg, "p2m7", directions)
 
 
 def test_registry_picks_up_a_new_effect_class(ctx_p2):
