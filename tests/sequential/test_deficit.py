@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from neckstrength.estimation.datasets import simulated_dataset
-from neckstrength.sequential.algorithms import SequentialSettings, StrengthGrid
+from neckstrength.sequential.algorithms import SequentialSettings, StrengthGrid, producible_truth
 from neckstrength.sequential.deficit import DeficitDefinition, StudySettings, detection_summary, run_deficit_study
 from neckstrength.sequential.joint import JointSettings
 from neckstrength.sequential.joint_state import JointState
@@ -120,3 +120,14 @@ def test_deficit_study_runs_every_strategy_with_fixed_seeds(p2m7_full_config):
     assert all(g.groupby(df.loc[g.index, "participant"]).nunique().eq(3).all() for _, g in runs)
     again = run_deficit_study(*args, lambda w, i: derive_rng(7, w, i), first=1)      # resume from participant 1
     assert np.allclose(again["p_deficit"].to_numpy(), df[df["participant"] == 1]["p_deficit"].to_numpy())
+
+
+def test_producible_truth_returns_the_first_all_optimal_draw_and_names_the_participant_when_none_is():
+    from neckstrength.wrench import STATUS_CODES
+    code = {v: k for k, v in STATUS_CODES.items()}
+    draws = iter([("a", np.array([code["optimal"], code["infeasible"]])),
+                  ("b", np.array([code["optimal"], code["optimal"]])),
+                  ("c", np.array([code["optimal"], code["optimal"]]))])
+    assert producible_truth(lambda: next(draws), "p")[0] == "b"
+    with pytest.raises(RuntimeError, match="participant 7: no producible truth in 3 draws"):
+        producible_truth(lambda: ("x", np.array([code["zero"]])), "participant 7", tries=3)

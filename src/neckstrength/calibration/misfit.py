@@ -34,7 +34,7 @@ import pandas as pd
 
 from neckstrength.calibration.sbc import LEVELS, muscle_group, weighted_pit, weighted_quantiles
 from neckstrength.model.reduction import ReducedModel
-from neckstrength.sequential.algorithms import sample_prior
+from neckstrength.sequential.algorithms import producible_truth, sample_prior
 from neckstrength.sequential.joint import JointPosterior, JointSettings
 
 
@@ -101,9 +101,7 @@ def misfit_coverage(model: ReducedModel, element_model: ReducedModel, full_stren
     covered, and the kernel width used. ``element_model``: the same kinematics with one group per element
     (e.g. 's3-independent'), whose max wrenches simulate the richer truth."""
     from neckstrength.wrench import solve
-    from neckstrength.wrench.problem import STATUS_CODES
 
-    opt = {v: k for k, v in STATUS_CODES.items()}["optimal"]
     directions = list(directions)
     f0 = model.strengths
     rows = []
@@ -111,7 +109,8 @@ def misfit_coverage(model: ReducedModel, element_model: ReducedModel, full_stren
     for truth_kind in settings.truths:
         for i in range(settings.n_participants):
             rt = rng_for(f"truth/{truth_kind}", i)
-            for _ in range(100):
+
+            def draw(rt=rt, truth_kind=truth_kind):
                 if truth_kind == "well":
                     fg = sample_prior(f0, joint.prior_sd_rel, 1, rt)[0]
                     w, _, st = solve(model, fg[None], U, return_alpha=False)
@@ -119,10 +118,9 @@ def misfit_coverage(model: ReducedModel, element_model: ReducedModel, full_stren
                     fe, fg = rich_truth(full_strengths, model.S, settings.element_sd, rt)
                     f_el = np.sqrt(((fe[:, None] * element_model.S) ** 2).sum(axis=0))   # planar: sides merged
                     w, _, st = solve(element_model, f_el[None], U_elements, return_alpha=False)
-                if np.all(st[0] == opt):
-                    break
-            else:
-                raise RuntimeError(f"{truth_kind} participant {i}: no producible truth in 100 draws")
+                return fg, w, st[0]
+
+            fg, w, _ = producible_truth(draw, f"{truth_kind} participant {i}")
             forces = w[0] * np.exp(settings.noise * rt.standard_normal(len(directions))) / force_scale
             misfit, _ = heldout_misfit(model, directions, U, force_scale, forces, f0, joint, settings.folds,
                                        rng_for(f"heldout/{truth_kind}", i))

@@ -101,6 +101,19 @@ def scaled_baseline(model: ReducedModel, data: Dataset) -> tuple[np.ndarray, flo
     return a * model.strengths, a, a_i
 
 
+def producible_truth(draw_and_solve: Callable[[], tuple], what: str, tries: int = 100) -> tuple:
+    """Redraw a simulated participant until its maximum force is optimal (producible) in every direction.
+
+    ``draw_and_solve()`` draws a truth from its own random stream and returns a tuple whose last element is the
+    solver's status row (K,) for it; the first draw whose statuses are all optimal is returned whole. Raises
+    ``RuntimeError`` naming ``what`` after ``tries`` draws."""
+    for _ in range(tries):
+        out = draw_and_solve()
+        if np.all(np.asarray(out[-1]) == _OPT):
+            return out
+    raise RuntimeError(f"{what}: no producible truth in {tries} draws")
+
+
 def sample_prior(f0: np.ndarray, sd_rel: float, n: int, rng: np.random.Generator) -> np.ndarray:
     """``N_F`` candidates from ``N(f_0, (sd_rel f_0)^2)`` truncated to positive strengths (redrawn)."""
     f0 = np.asarray(f0, float)

@@ -34,6 +34,7 @@ from neckstrength.sequential.algorithms import (
     SequentialState,
     SimulatedSet,
     StrengthGrid,
+    producible_truth,
     sample_prior,
 )
 from neckstrength.sequential.joint import JointPosterior, JointSettings
@@ -162,9 +163,7 @@ def run_deficit_study(model: ReducedModel, directions: Sequence[str], U: np.ndar
     rows when they are complete."""
     from neckstrength.wrench import solve
     from neckstrength.wrench.batched import BasisCache
-    from neckstrength.wrench.problem import STATUS_CODES
 
-    opt = {v: k for k, v in STATUS_CODES.items()}["optimal"]
     directions = list(directions)
     names = list(model.muscle_names)
     gidx = definition.indices(names)
@@ -193,13 +192,13 @@ def run_deficit_study(model: ReducedModel, directions: Sequence[str], U: np.ndar
         kind = kinds[i]
         lo, hi = study.deficit_range if kind == "deficit" else study.normal_range
         rt = rng_for("truth", i)
-        for _ in range(100):          # a truth that cannot produce every direction is redrawn (same stream)
+
+        def draw(rt=rt, lo=lo, hi=hi):  # a truth that cannot produce every direction is redrawn (same stream)
             fa = draw_participant(f0, joint.prior_sd_rel, gidx, lo, hi, rt)
             w, alpha, st = solve(model, fa[None], U, cache=cache)
-            if np.all(st[0] == opt):
-                break
-        else:
-            raise RuntimeError(f"participant {i}: no producible truth in 100 draws")
+            return fa, w, alpha, st[0]
+
+        fa, w, alpha, _ = producible_truth(draw, f"participant {i}")
         forces = w[0] * np.exp(study.noise * rt.standard_normal(len(directions))) / force_scale
         bounds = {}
         for key, mask in (("joint_eig+emg", emg_mask), ("joint_eig+emg+deep", deep_mask)):
