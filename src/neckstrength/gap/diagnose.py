@@ -298,8 +298,8 @@ def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSett
     if store is not None and len(todo) < len(data):
         say(f"resumed {len(data) - len(todo)} of {len(data)} data set(s) from {store.folder}")
     n = max(1, int(chunk)) if chunk else max(1, len(todo))
-    # numpy's BLAS on one thread: the fits' products are many and small, and a multi-threaded BLAS spends
-    # about as much CPU spinning as computing (half the CPU time of a diagnosis on 2 cores)
+    # numpy's BLAS on one thread for the whole diagnosis (the fits set it themselves, see gap.fit; this covers
+    # the bootstrap and reach-envelope products around them too)
     with single_threaded_blas():
         for a in range(0, len(todo), n):
             part = todo[a:a + n]
