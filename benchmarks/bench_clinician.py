@@ -59,6 +59,10 @@ def main(argv=None) -> int:
     ap.add_argument("--n-max", type=int, default=25)
     ap.add_argument("--seed", type=int, default=None, help="default: config seed")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--threads", type=int, default=os.cpu_count() or 1,
+                    help="solver threads (the session's default: every core); the numbers do not depend on it")
+    ap.add_argument("--shared-cache", action="store_true",
+                    help="one basis cache for every run (as before 2026-11-24): later runs start from earlier bases")
     a = ap.parse_args(argv)
 
     cfg = load_config(a.config)
@@ -82,8 +86,10 @@ def main(argv=None) -> int:
         for n in a.n:
             js = joint_settings(cfg, n_candidates=n)
             for r in range(a.replicates):
+                # a fresh basis cache per run, as a session has (a cache shared over participants and N fills with
+                # their bases and slows every later run: docs/clinician.md)
                 post = JointPosterior(model, dirs, U, fs, f0, js, derive_rng(seed, "bench_clinician/candidates", r),
-                                      cache=cache)
+                                      cache=BasisCache() if not a.shared_cache else cache, n_threads=a.threads)
                 prng = derive_rng(seed, "bench_clinician/propose", r)
                 for t in range(1, a.n_max + 1):
                     t0 = time.perf_counter()
@@ -148,12 +154,14 @@ def main(argv=None) -> int:
                               max_resample_step_s=("update_s", "max")).reset_index()
     load = os.getloadavg() if hasattr(os, "getloadavg") else (np.nan,) * 3
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cpus, load average "
-          f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f} (at the end); seed {seed}")
+          f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f} (at the end); seed {seed}; solver threads {a.threads}, "
+          f"{'one shared' if a.shared_cache else 'a fresh'} basis cache per run")
     print(stab.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     print(tim.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     if a.json:
         with open(a.json, "w") as fh:
-            json.dump({"seed": seed, "load_end": load, "cpus": os.cpu_count(), "runs": rows,
+            json.dump({"seed": seed, "load_end": load, "threads": a.threads, "shared_cache": a.shared_cache,
+                       "cpus": os.cpu_count(), "runs": rows,
                        "stability": stab.to_dict("records"), "timing": tim.to_dict("records")}, fh, indent=1)
     return 0
 

@@ -63,3 +63,24 @@ def test_s3m24_thesis_criterion_stays_available(tmp_path):
     with pytest.raises(ValueError, match="priorities"):
         Session.start(tmp_path / "p", SessionOptions(model="s3m24", config=CFG, priorities={"mf-R": 1.0}),
                       progress=lambda x: None)
+
+
+def test_session_threads_change_speed_only(tmp_path):
+    """--threads (the joint posterior's solver threads; default every core) is not in the header and does not change
+    the numbers: a session resumed with another thread count renders the same screen."""
+    import os
+
+    from neckstrength.session import session_threads
+
+    assert session_threads(None) == session_threads(0) == max(1, os.cpu_count() or 1)
+    assert session_threads(3) == 3
+    with pytest.raises(ValueError, match="--threads"):
+        session_threads(-1)
+    out = tmp_path / "t"
+    s = Session.start(out, SessionOptions(model="s3m24", config=CFG), progress=lambda x: None, threads=1)
+    assert s.state.post.n_threads == 1
+    _drive(s, ["150", "measure backLow 120", "measure forehead 90"])
+    assert "threads" not in json.loads((out / "session.json").read_text())["options"]
+    r = Session.resume(out, progress=lambda x: None, threads=2)
+    assert r.state.post.n_threads == 2
+    assert r.render().split("===", 2)[2] == s.render().split("===", 2)[2]

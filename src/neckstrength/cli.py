@@ -243,14 +243,14 @@ def _cmd_session(args) -> int:
 
     try:
         if args.action == "resume":
-            s = Session.resume(args.out)
+            s = Session.resume(args.out, threads=args.threads)
             return run_interactive(s)
         opts = SessionOptions(model=args.model, participant=args.participant,
                               priorities=parse_priorities(args.priority), config=args.config,
                               n_candidates=args.n_candidates, prior_scale=args.prior_scale,
                               gain_frac=args.stop_frac, cache=args.cache, seed=args.seed, criterion=args.criterion,
                               postures=args.postures, posture_change_cost=args.posture_change_cost)
-        s = Session.start(args.out, opts)
+        s = Session.start(args.out, opts, threads=args.threads)
         return run_interactive(s) if args.action == "start" else replay_csv(s, args.csv)
     except (InputError, ValueError, FileExistsError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -362,6 +362,10 @@ def build_parser() -> argparse.ArgumentParser:
                             "last one (default 0)")
     a = ss.add_parser("resume", help="resume a session from its log")
     a.add_argument("--out", required=True)
+    for a in ss.choices.values():
+        a.add_argument("--threads", type=int, default=0,
+                       help="threads of the joint posterior's solver (directions solved concurrently; the numbers do "
+                            "not depend on it); default 0 = every core")
     d.set_defaults(func=_cmd_session)
 
     d = sub.add_parser("diagnose", help="sim-to-real gap diagnosis of one data set (forces only)")

@@ -372,6 +372,17 @@ class SessionOptions:
     posture_change_cost: float = 0.0                    # nats charged per posture change by the criterion
 
 
+def session_threads(threads: int | None) -> int:
+    """Threads of the joint posterior's solver calls (directions solved concurrently; the numbers are the same for
+    any count). None or 0: every core of this machine (``os.cpu_count()``), as an interactive session has the
+    machine to itself; the step times of docs/clinician.md were measured with 2 threads on 2 cores."""
+    if threads is None or int(threads) == 0:
+        return max(1, os.cpu_count() or 1)
+    if int(threads) < 0:
+        raise ValueError(f"--threads: {threads!r} must be >= 0 (0 = every core)")
+    return int(threads)
+
+
 def resolve_postures(spec: str | Sequence[str] | None, known: Sequence[str]) -> list[str] | None:
     """``--postures`` -> the session's postures, neutral first; None for neutral only (the default session).
     ``spec``: a comma-separated string or a list; ``'all'`` = every posture of ``known`` (config postures.postures)."""
@@ -397,7 +408,8 @@ def resolve_postures(spec: str | Sequence[str] | None, known: Sequence[str]) -> 
 class Session:
     """One participant's session in folder ``out`` (header, log, outputs)."""
 
-    def __init__(self, out: str | Path, opts: SessionOptions, progress: Callable[[str], None] = print):
+    def __init__(self, out: str | Path, opts: SessionOptions, progress: Callable[[str], None] = print,
+                 threads: int | None = None):
         from neckstrength.config import (
             build_directions,
             chapter6_settings,
@@ -412,6 +424,7 @@ class Session:
 
         self.out = Path(out)
         self.progress = progress
+        self.threads = session_threads(threads)     # not in the header: the numbers do not depend on it
         cfg = load_config(opts.config)
         self.cfg = cfg
         defaults = session_defaults(cfg, opts.model)
@@ -506,11 +519,12 @@ class Session:
         rng = derive_rng(self.seed, f"session/{self.opts.model}/joint")
         if self.pset is None:
             return JointState(self.model, self.directions, self.U, self.force_scale, self.f0, self.settings, rng,
-                              self.criterion, self.deficit)
+                              self.criterion, self.deficit, n_threads=self.threads)
         from neckstrength.postures.sequential import PostureJointPosterior
 
         post = PostureJointPosterior(self.pset, self.directions, self.U, self.force_scale, self.test_postures,
-                                     self.f0, self.settings, rng, change_cost=self.opts.posture_change_cost)
+                                     self.f0, self.settings, rng, change_cost=self.opts.posture_change_cost,
+                                     n_threads=self.threads)
         return JointState(self.model, self.directions, self.U, self.force_scale, self.f0, self.settings, rng,
                           self.criterion, self.deficit, posterior=post,
                           key_extra="postures=" + ",".join(self.postures) + f";cost={self.opts.posture_change_cost!r}")
@@ -561,26 +575,26 @@ class Session:
                 "muscles": self.muscles, "gain_frac": self.gain_frac}
 
     @classmethod
-    def start(cls, out: str | Path, opts: SessionOptions, progress=print) -> "Session":
+    def start(cls, out: str | Path, opts: SessionOptions, progress=print, threads: int | None = None) -> "Session":
         out = Path(out)
         if (out / LOG).exists() or (out / HEADER).exists():
             raise FileExistsError(f"{out} already holds a session; use `neckstrength session resume --out {out}`")
         out.mkdir(parents=True, exist_ok=True)
-        s = cls(out, opts, progress)
+        s = cls(out, opts, progress, threads)
         tmp = out / (HEADER + ".tmp")
         tmp.write_text(json.dumps(s.header(), indent=2, sort_keys=True))
         os.replace(tmp, out / HEADER)
         return s
 
     @classmethod
-    def resume(cls, out: str | Path, progress=print) -> "Session":
+    def resume(cls, out: str | Path, progress=print, threads: int | None = None) -> "Session":
         out = Path(out)
         if not (out / HEADER).exists():
             raise FileNotFoundError(f"{out}: no {HEADER}; start a session with `neckstrength session start`")
         h = json.loads((out / HEADER).read_text())
         o = dict(h["options"])
         o.setdefault("criterion", "thesis")     # sessions started before the joint posterior: the thesis's scheme
-        s = cls(out, SessionOptions(**o), progress)
+        s = cls(out, SessionOptions(**o), progress, threads)
         if s.key != h["sim_key"]:
             raise ValueError(f"{out}: the candidate set differs from the one the session started with (key "
                              f"{h['sim_key']}, now {s.key}); the config or the package changed")

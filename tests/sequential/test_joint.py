@@ -68,6 +68,31 @@ def test_resampling_weights_are_unbiased(setup):
     assert np.all(np.abs(e1["f_c"] - post.estimate()["f_c"]) < 0.25 * e1["sd_c"])
 
 
+def test_early_rejection_and_threads_leave_the_chain_unchanged(setup):
+    """Early rejection in the Metropolis-Hastings moves (proposals dropped once their partial log-likelihood cannot
+    reach the acceptance threshold) and solver threads are speed only: the candidates, wrenches and weights after
+    updates with resample-move are those of the reference (every proposal solved in every tested direction, one
+    thread), to the solver's rounding; and early rejection did skip LPs."""
+    _, data, _ = setup
+    runs = {}
+    for label, early, threads in (("reference", False, 1), ("early", True, 1), ("early+threads", True, 2)):
+        post = _post(setup, n=3000, seed=7, resample_ess=0.3)
+        post.early_reject = early
+        post.n_threads = threads
+        for d in data.directions[:4]:
+            post.update(d, 1.1 * data.forces[data.directions.index(d)])
+        runs[label] = post
+    ref = runs["reference"]
+    assert ref.n_resamples >= 2 and 0.02 < ref.last_acceptance < 0.98
+    for label in ("early", "early+threads"):
+        post = runs[label]
+        assert post.n_resamples == ref.n_resamples
+        np.testing.assert_allclose(post.F, ref.F, rtol=1e-12)
+        np.testing.assert_allclose(post.W, ref.W, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(post.weights(), ref.weights(), rtol=1e-9, atol=1e-15)
+        assert post.n_lps < ref.n_lps, (label, post.n_lps, ref.n_lps)
+
+
 def test_mc_se_is_the_iid_error_before_resampling_and_tracks_the_spread_after(setup):
     """Monte Carlo error of a posterior mean (JointPosterior.mc_se, the session's ± on P(deficit)): on the prior
     draws it is the iid formula sd / sqrt(N); after resample-move (clusters of descendants of one draw) it is

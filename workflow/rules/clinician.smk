@@ -32,7 +32,7 @@ rule clinician_deficit:
             "data.thesis_dir", "model", "seed"),
     log:
         "logs/clinician/{named}/deficit.log",
-    threads: 1
+    threads: 2    # directions solved concurrently (same numbers for any count)
     resources:
         mem_mb=4000,
     conda:

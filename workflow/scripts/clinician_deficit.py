@@ -10,4 +10,4 @@ with open(snakemake.log[0], "w") as log:
     sys.stderr = sys.stdout = log
     o = snakemake.output
     clinician_deficit(rule_settings(snakemake), snakemake.wildcards.named, snakemake.input.directions, o.runs,
-                      o.summary, o.fig)
+                      o.summary, o.fig, n_threads=snakemake.threads)

@@ -69,7 +69,7 @@ def _read_partials(out_runs, sig: str) -> pd.DataFrame:
 
 
 def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs, out_summary, out_fig,
-                      participants=None, interim_dir=None) -> pd.DataFrame | None:
+                      participants=None, interim_dir=None, n_threads: int = 1) -> pd.DataFrame | None:
     """Simulated participants with the deficit group at 25-50% of normal and normal ones: tests until
     P(deficit) > p_alarm for each strategy, false alarms.
 
@@ -78,7 +78,7 @@ def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs
     signature. ``participants`` (indices) runs only those, into ``<out_runs>.partial.<first>-<last>.csv``, and
     writes no outputs: a long run split over processes; the rule's own run then collects them. ``interim_dir``
     runs nothing: the participants finished so far are summarised into that folder (headers say INTERIM, with
-    the counts), the partial files stay for the run to resume."""
+    the counts), the partial files stay for the run to resume. ``n_threads``: the solver's threads (same numbers)."""
     from neckstrength.sequential.deficit import detection_summary, run_deficit_study
     from neckstrength.sequential.plots import fig_deficit_study
 
@@ -125,7 +125,7 @@ def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs
     if not interim:
         run_deficit_study(model, list(d["name"]), U, d["force_scale"].to_numpy(float), f0, definition, study,
                           joint, thesis, rng_for, progress=lambda s: print(s, flush=True), on_participant=save,
-                          participants=participants, skip=done_elsewhere)
+                          participants=participants, skip=done_elsewhere, n_threads=n_threads)
     if chunk:
         return None
     df = _read_partials(runs_path, sig).drop_duplicates(["participant", "run", "t"])

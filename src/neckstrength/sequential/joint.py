@@ -350,10 +350,16 @@ class JointPosterior:
         acc = 0
         for j in range(n_moves):
             Fp = F * np.exp(self.rng.standard_normal((N, m)) @ L.T)
-            Wp = self._wrenches(Fp, tested)     # the acceptance ratio needs the tested directions only
-            logtp = self.log_prior(Fp) + self._loglik_all_for(Wp)
+            logu = np.log(self.rng.random(N))
             # random walk in log f: the Jacobian of f = exp(y) enters the acceptance ratio
-            a = np.log(self.rng.random(N)) < (logtp - logt + np.log(Fp).sum(axis=1) - np.log(F).sum(axis=1))
+            rest = self.log_prior(Fp) - logt + np.log(Fp).sum(axis=1) - np.log(F).sum(axis=1)
+            Wp = self._wrenches_early_reject(Fp, tested, logu - rest, W)
+            alive = np.flatnonzero(np.isfinite(Wp[:, tested]).all(axis=1)) if len(tested) else np.arange(N)
+            a = np.zeros(N, bool)
+            logtp = np.full(N, -np.inf)
+            logtp[alive] = self.log_prior(Fp[alive]) + self._loglik_all_for(Wp[alive])
+            a[alive] = logu[alive] < (logtp[alive] - logt[alive] + np.log(Fp[alive]).sum(axis=1)
+                                      - np.log(F[alive]).sum(axis=1))
             F[a], W[a], logt[a] = Fp[a], Wp[a], logtp[a]
             origin[a] = (j + 1) * N + np.flatnonzero(a)
             acc += int(a.sum())
@@ -365,6 +371,58 @@ class JointPosterior:
         self.F, self.W = F, W
         self.loglik = self._loglik_all()
         self.log_iw = -self.loglik            # equal weights: the candidates are draws from the current target
+
+    #: early rejection in the Metropolis-Hastings moves (False: every proposal solved in every tested direction;
+    #: the same chain, the reference of tests/sequential/test_joint.py)
+    early_reject = True
+
+    #: a proposal is dropped early only when its partial log-likelihood is below the acceptance threshold by more
+    #: than this (the full sum, added in another order, then cannot reach it either)
+    EARLY_REJECT_MARGIN = 1e-9
+
+    def _wrenches_early_reject(self, Fp: np.ndarray, tested: np.ndarray, need: np.ndarray,
+                               W_cur: np.ndarray) -> np.ndarray:
+        """Wrenches of the proposals ``Fp`` in the ``tested`` directions for the Metropolis-Hastings step, with
+        early rejection (Solonen et al. 2012): a proposal is accepted iff its log-likelihood ``sum_s phi_s l_s``
+        exceeds ``need`` (log u minus the prior, Jacobian and current-state terms). Every term ``l_s`` is <= 0, so
+        once the terms solved so far fall below ``need`` the proposal is rejected whatever the others are, and its
+        remaining directions are not solved. The directions go in groups of ``n_threads`` (solved concurrently).
+        Rows left with NaN are rejected ones; the accepted ones have every tested direction, so the chain is the
+        same as with every LP solved (to the solver's rounding: a row's wrench does not depend on its batch)."""
+        N, K = len(Fp), len(self.directions)
+        Wp = np.full((N, K), np.nan)
+        if not len(tested):
+            return Wp
+        by_col = {t["i"]: t for t in self.tests if t["phi"] > 0}
+        # the directions that penalise the current candidates (``W_cur``) most first
+        order = tested[np.argsort(self._loglik_cols(W_cur, tested).mean(axis=0), kind="stable")]
+        ll = np.zeros(N)
+        if not self.early_reject:
+            Wp[:, tested] = self._wrenches(Fp, tested)[:, tested]
+            return Wp
+        alive = np.flatnonzero(need < 0.0)        # need >= 0: rejected whatever the likelihood (it is <= 0)
+        g = max(1, int(self.n_threads))
+        for s0 in range(0, len(order), g):
+            if not alive.size:
+                break
+            cols = order[s0:s0 + g]
+            Wp[alive[:, None], cols[None, :]] = self._wrenches(Fp[alive], cols)[:, cols]
+            for c in cols:
+                t = by_col.get(int(c))
+                if t is not None:
+                    ll[alive] += t["phi"] * self._test_loglik(Wp[alive, c], t["w_meas"])
+            alive = alive[ll[alive] > need[alive] - self.EARLY_REJECT_MARGIN]
+        return Wp
+
+    def _loglik_cols(self, W: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(N x len(cols)) per-test terms ``phi_s l_s`` of the candidates' wrenches ``W`` (0 for phi = 0)."""
+        by_col = {t["i"]: t for t in self.tests}
+        out = np.zeros((len(W), len(cols)))
+        for k, c in enumerate(cols):
+            t = by_col.get(int(c))
+            if t is not None and t["phi"] > 0:
+                out[:, k] = t["phi"] * self._test_loglik(W[:, c], t["w_meas"])
+        return out
 
     def _loglik_all_for(self, W: np.ndarray) -> np.ndarray:
         out = np.zeros(len(W))

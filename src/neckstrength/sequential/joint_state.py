@@ -61,15 +61,16 @@ class JointState:
     def __init__(self, model: ReducedModel, directions: Sequence[str], U: np.ndarray, force_scale: np.ndarray,
                  f0: np.ndarray, settings: JointSettings, rng: np.random.Generator, criterion: str = "joint_eig",
                  deficit: DeficitDefinition | None = None, cache=None, posterior: JointPosterior | None = None,
-                 key_extra: str = ""):
+                 key_extra: str = "", n_threads: int = 1):
         if criterion not in JOINT_CRITERIA:
             raise ValueError(f"criterion {criterion!r} is not one of the joint posterior's: {JOINT_CRITERIA}")
         self.model = model
         self.criterion = criterion
         self.force_scale = np.asarray(force_scale, float)
         # ``posterior``: a ready JointPosterior over the same tests (e.g. the posture one, issue 20)
-        self.post = (JointPosterior(model, directions, U, force_scale, f0, settings, rng, cache=cache)
-                     if posterior is None else posterior)
+        # ``n_threads``: directions solved concurrently (the same numbers for any value)
+        self.post = (JointPosterior(model, directions, U, force_scale, f0, settings, rng, cache=cache,
+                                    n_threads=n_threads) if posterior is None else posterior)
         self.deficit = deficit if deficit is not None and deficit.applies(model.muscle_names) else None
         self.key = hashlib.sha256(np.ascontiguousarray(self.post.F).tobytes()
                                   + np.ascontiguousarray(U, float).tobytes()
