@@ -131,3 +131,38 @@ def test_producible_truth_returns_the_first_all_optimal_draw_and_names_the_parti
     assert producible_truth(lambda: next(draws), "p")[0] == "b"
     with pytest.raises(RuntimeError, match="participant 7: no producible truth in 3 draws"):
         producible_truth(lambda: ("x", np.array([code["zero"]])), "participant 7", tries=3)
+
+
+def test_surface_strategy_chooses_among_more_directions_and_leaves_the_others_unchanged(p2m7_full_config):
+    """'joint_eig+surface' may pick head-surface points (here the s3m24 grid of the CI config, all on the
+    cranial ellipsoid); adding the strategy does not change the other strategies' numbers (its noise is drawn after
+    theirs); without the surface directions the strategy is refused."""
+    from neckstrength.config import full_model_from_config, head_from_config, model_from_config
+    from neckstrength.estimation.datasets import model_directions_table
+    from neckstrength.pipeline.clinician import surface_directions
+    from neckstrength.seeds import derive_rng
+
+    cfg, _, directions = p2m7_full_config
+    model = model_from_config(full_model_from_config(cfg), cfg, "s3m24")
+    d, U = model_directions_table(model, directions)
+    base = {"n_deficit": 1, "n_normal": 0, "n_max": 3, "surface_azimuth_step_deg": 60.0,
+            "surface_elevation_deg": (0.0, 30.0)}
+    with_surface = StudySettings(strategies=("joint_eig", "joint_eig+surface"), **base)
+    names, Us, fss = surface_directions(model, head_from_config(cfg), with_surface)
+    assert len(names) == 11 and Us.shape == (11, U.shape[1]) and np.all(fss > 0)     # 12 grid points, 1 on the face
+    assert all(n.startswith("az") for n in names)
+    args = (model, list(d["name"]), U, d["force_scale"].to_numpy(float), model.strengths,
+            DeficitDefinition(group=("mf",)))
+    def rng(w, i):
+        return derive_rng(11, w, i)
+
+    js = JointSettings(n_candidates=300)
+    df = run_deficit_study(*args, with_surface, js, None, rng, surface=(names, Us, fss))
+    only = run_deficit_study(*args, StudySettings(strategies=("joint_eig",), **base), js, None, rng)
+    a = df[df["strategy"] == "joint_eig"].reset_index(drop=True)
+    assert a["direction"].tolist() == only["direction"].tolist()
+    np.testing.assert_allclose(a["p_deficit"], only["p_deficit"], rtol=1e-9, atol=1e-12)
+    surf = df[(df["strategy"] == "joint_eig+surface") & (df["t"] > 0)]
+    assert len(surf) == 3 and set(surf["direction"]) <= set(d["name"]) | set(names)
+    with pytest.raises(ValueError, match="surface directions"):
+        run_deficit_study(*args, with_surface, js, None, rng)

@@ -29,7 +29,7 @@ rule clinician_deficit:
             "chapter6.n_bins", "chapter6.prior_sd_rel", "chapter6.n_sim", "chapter6.epsilon", "chapter6.q",
             "chapter6.n_wbins", "chapter6.alpha_min", "chapter6.likelihood", "chapter6.likelihood_floor",
             "chapter6.predictive", "chapter6.n_candidates", "chapter6.model_settings.{named}", "data.model_dir",
-            "data.thesis_dir", "model", "seed"),
+            "data.thesis_dir", "geometry.head", "model", "seed"),
     log:
         "logs/clinician/{named}/deficit.log",
     threads: 2    # directions solved concurrently (same numbers for any count)

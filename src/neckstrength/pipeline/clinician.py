@@ -15,6 +15,7 @@ from neckstrength.config import (
     deficit_definition,
     derive_rng,
     full_model_from_config,
+    head_from_config,
     joint_settings,
     model_from_config,
     plain,
@@ -44,8 +45,24 @@ def study_settings_for(config: Mapping, model_name: str):
                           n_max=int(st["n_max"]), p_alarm=float(st["p_alarm"]),
                           strategies=tuple(st["strategies"]), n_random=int(st["n_random"]),
                           emg_groups=emg_groups if any("emg" in x for x in st["strategies"]) else (),
-                          emg_band=float(st["emg_band"]))
+                          emg_band=float(st["emg_band"]),
+                          **({"surface_azimuth_step_deg": float(st["surface"]["azimuth_step_deg"]),
+                              "surface_elevation_deg": tuple(float(x) for x in st["surface"]["elevation_deg"])}
+                             if "surface" in st else {}))
     return deficit_definition(config), study, joint, thesis
+
+
+def surface_directions(model, head, study):
+    """(names, U, force scale) of the head-surface points of strategy 'joint_eig+surface': the grid of
+    :func:`neckstrength.gap.discriminate.surface_points` (azimuth step and elevations of ``study``, the face left out,
+    force along the outward normal); planar models keep the sagittal points."""
+    from neckstrength.gap.discriminate import DiscriminateSettings, surface_points
+    from neckstrength.model.geometry import direction_table
+
+    pts = surface_points(head, DiscriminateSettings(azimuth_step_deg=study.surface_azimuth_step_deg,
+                                                    elevation_deg=tuple(study.surface_elevation_deg)))
+    d, U = model_directions_table(model, direction_table(pts, head))
+    return list(d["name"]), U, d["force_scale"].to_numpy(float)
 
 
 def _signature(definition, study, joint, thesis, seed: int, model_name: str) -> str:
@@ -122,10 +139,15 @@ def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs
                 fh.write(f"# signature {sig}\n")
             one.to_csv(fh, header=new, index=False, float_format="%.6g")
 
+    surface = None
+    if "joint_eig+surface" in study.strategies:
+        surface = surface_directions(model, head_from_config(config), study)
+        print(f"strategy joint_eig+surface: {len(surface[0])} head-surface directions besides the {len(d)} tests",
+              flush=True)
     if not interim:
         run_deficit_study(model, list(d["name"]), U, d["force_scale"].to_numpy(float), f0, definition, study,
                           joint, thesis, rng_for, progress=lambda s: print(s, flush=True), on_participant=save,
-                          participants=participants, skip=done_elsewhere, n_threads=n_threads)
+                          participants=participants, skip=done_elsewhere, n_threads=n_threads, surface=surface)
     if chunk:
         return None
     df = _read_partials(runs_path, sig).drop_duplicates(["participant", "run", "t"])

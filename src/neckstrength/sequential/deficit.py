@@ -15,8 +15,8 @@ marginal PDFs are convolved as that scheme treats them, independent.
 :func:`run_deficit_study` simulates participants with the group at ``deficit_range`` of its baseline (the other
 muscles from the prior) and normal ones (the group at ``normal_range``), measures them in the order each strategy
 picks (the joint expected information gain, random orders, the thesis's Eq. 6.7 on its own scheme, optionally the
-joint EIG with simulated EMG bounds of the recorded muscles), and records P(deficit) after every test on the
-joint posterior; :func:`detection_summary` gives the tests until P > ``p_alarm`` and the false-alarm rate.
+joint EIG with simulated EMG bounds of the recorded muscles, or choosing among further points on the head surface as
+well as the test directions), and records P(deficit) after every test on the joint posterior; :func:`detection_summary` gives the tests until P > ``p_alarm`` and the false-alarm rate.
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ from neckstrength.sequential.algorithms import (
     sample_prior,
 )
 from neckstrength.sequential.joint import JointPosterior, JointSettings
+from neckstrength.wrench.problem import STATUS_CODES
 
 
 @dataclass(frozen=True)
@@ -123,6 +124,10 @@ class StudySettings:
     n_random: int = 1
     emg_groups: tuple[str, ...] = ()                     # strategy 'joint_eig+emg': bounds of these groups
     emg_band: float = 0.05
+    # strategy 'joint_eig+surface': the test directions plus points on the cranial ellipsoid (azimuth step x
+    # elevations, face left out, force along the outward normal), chosen from by the same criterion
+    surface_azimuth_step_deg: float = 30.0
+    surface_elevation_deg: tuple[float, ...] = (-30.0, 0.0, 30.0, 60.0)
 
     def __post_init__(self):
         bad = [s for s in self.strategies if s not in STRATEGIES]
@@ -137,7 +142,10 @@ class StudySettings:
             raise ValueError("strategy 'random' needs n_random >= 1")
 
 
-STRATEGIES = ("joint_eig", "random", "thesis", "joint_eig+emg", "joint_eig+emg+deep")
+_OPT = {v: k for k, v in STATUS_CODES.items()}["optimal"]
+
+
+STRATEGIES = ("joint_eig", "random", "thesis", "joint_eig+emg", "joint_eig+emg+deep", "joint_eig+surface")
 
 
 def draw_participant(f0: np.ndarray, prior_sd_rel: float, group_idx: np.ndarray, low: float, high: float,
@@ -154,13 +162,17 @@ def run_deficit_study(model: ReducedModel, directions: Sequence[str], U: np.ndar
                       progress: Callable[[str], None] | None = None, first: int = 0,
                       on_participant: Callable[[pd.DataFrame], None] | None = None,
                       participants: Sequence[int] | None = None,
-                      skip: Callable[[int], bool] | None = None, n_threads: int = 1) -> pd.DataFrame:
+                      skip: Callable[[int], bool] | None = None, n_threads: int = 1,
+                      surface: tuple[Sequence[str], np.ndarray, np.ndarray] | None = None) -> pd.DataFrame:
     """One row per participant, strategy run and test count t (0 = prior): P(deficit) on the joint posterior,
     the group's posterior mean, ESS share. Participant ``i`` draws from ``rng_for('truth', i)``; every run of a
     participant starts from the same candidates (``rng_for('candidates', i)``). Participants before ``first`` are
     skipped (resume); ``participants`` restricts the run to these indices (a chunk of a split run); ``skip(i)`` is
     asked just before participant ``i`` (done by another process); ``on_participant`` receives each participant's
-    rows when they are complete; ``n_threads``: directions solved concurrently (same numbers)."""
+    rows when they are complete; ``n_threads``: directions solved concurrently (same numbers). ``surface``:
+    (names, U, force scale) of the further head-surface directions of strategy 'joint_eig+surface' (its runs choose
+    from ``directions`` and these; a surface direction the participant's truth cannot push in is left out of that
+    participant's run, as a clinician would find it untestable)."""
     from neckstrength.wrench import solve
     from neckstrength.wrench.batched import BasisCache
 
@@ -200,6 +212,14 @@ def run_deficit_study(model: ReducedModel, directions: Sequence[str], U: np.ndar
 
         fa, w, alpha, _ = producible_truth(draw, f"participant {i}")
         forces = w[0] * np.exp(study.noise * rt.standard_normal(len(directions))) / force_scale
+        if "joint_eig+surface" in study.strategies:
+            if surface is None:
+                raise ValueError("strategy 'joint_eig+surface' needs the surface directions")
+            # drawn after the test directions' noise (nothing else reads rt): the other strategies are unchanged
+            ws, _, sts = solve(model, fa[None], surface[1], cache=cache)
+            fs_surf = ws[0] * np.exp(study.noise * rt.standard_normal(len(surface[0]))) / surface[2]
+            ok = (sts[0] == _OPT) & (ws[0] > 0)
+            surf = ([n for n, k in zip(surface[0], ok) if k], surface[1][ok], surface[2][ok], fs_surf[ok])
         bounds = {}
         for key, mask in (("joint_eig+emg", emg_mask), ("joint_eig+emg+deep", deep_mask)):
             lb, ub = np.zeros((len(directions), model.m)), np.ones((len(directions), model.m))
@@ -220,8 +240,15 @@ def run_deficit_study(model: ReducedModel, directions: Sequence[str], U: np.ndar
         pcache = BasisCache()
         for strategy, label in runs:
             t0 = time.time()
-            post = JointPosterior(model, directions, U, force_scale, f0, joint, rng_for("candidates", i),
-                                  cache=pcache, n_threads=n_threads)
+            if strategy == "joint_eig+surface":
+                dirs_run = directions + surf[0]
+                post = JointPosterior(model, dirs_run, np.vstack([U, surf[1]]), np.r_[force_scale, surf[2]], f0,
+                                      joint, rng_for("candidates", i), cache=pcache, n_threads=n_threads)
+                forces_run = np.r_[forces, surf[3]]
+            else:
+                dirs_run, forces_run = directions, forces
+                post = JointPosterior(model, directions, U, force_scale, f0, joint, rng_for("candidates", i),
+                                      cache=pcache, n_threads=n_threads)
             prop_rng = rng_for(f"propose/{label}", i)
             state = SequentialState(model, sim, force_scale, thesis) if strategy == "thesis" else None
             emg = bounds.get(strategy)
@@ -236,11 +263,11 @@ def run_deficit_study(model: ReducedModel, directions: Sequence[str], U: np.ndar
                     d = state.propose(prop_rng).choice
                 else:
                     d, _ = post.propose("joint_eig", prop_rng)
-                k = directions.index(d)
+                k = dirs_run.index(d)
                 act = None if emg is None else (emg[0][k], emg[1][k])
-                post.update(d, float(forces[k]), act)
+                post.update(d, float(forces_run[k]), act)
                 if state is not None:
-                    state.update(d, float(forces[k]))
+                    state.update(d, float(forces_run[k]))
                 rows.append(_record(post, definition, f0, names, base, t, d))
             if progress:
                 last = rows[-1]
