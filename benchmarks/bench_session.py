@@ -13,6 +13,7 @@ Run from the repository root::
 
     .venv/bin/python benchmarks/bench_session.py                          # s3m24, N_F 500,000, fresh build
     .venv/bin/python benchmarks/bench_session.py --models p2m7 s3m24 --n-candidates p2m7=500000 s3m24=20000
+    .venv/bin/python benchmarks/bench_session.py --criterion joint_eig --threads 2    # the s3m24 default session
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ from pathlib import Path
 import numpy as np
 
 
-def bench(model: str, n_candidates: int, cache: str, config: str, verbose: bool = True) -> dict:
+def bench(model: str, n_candidates: int | None, cache: str, config: str, verbose: bool = True,
+          criterion: str = "thesis", threads: int = 0) -> dict:
     from neckstrength.session import Entry, Session, SessionOptions
     from neckstrength.wrench import solve
 
@@ -38,12 +40,13 @@ def bench(model: str, n_candidates: int, cache: str, config: str, verbose: bool 
         t0 = time.perf_counter()
         s = Session.start(Path(tmp) / "s", SessionOptions(model=model, participant="bench", config=config,
                                                           n_candidates=n_candidates, cache=cache,
-                                                          criterion="thesis"),   # the thesis's scheme
-                          progress=lambda x: print(x, flush=True) if verbose else None)
+                                                          criterion=criterion),   # default: the thesis's scheme
+                          progress=lambda x: print(x, flush=True) if verbose else None, threads=threads)
         t_start = time.perf_counter() - t0
         c_start = time.process_time() - c0
         print(f"start: {t_start:.1f} s (CPU {c_start:.1f} s, load average {os.getloadavg()[0]:.2f})", flush=True)
-        w, _, _ = solve(s.model, 0.9 * s.model.strengths[None], s.sim.U)
+        U = s.U if s.joint else s.sim.U
+        w, _, _ = solve(s.model, 0.9 * s.model.strengths[None], U)
         forces = w[0] / s.state.force_scale
         # time the parts of Session.accept: the log append and Algorithm 8 (state.likelihood)
         parts = {"log": 0.0, "update": 0.0}
@@ -86,7 +89,8 @@ def bench(model: str, n_candidates: int, cache: str, config: str, verbose: bool 
                   f"{st['proposal']:.3f} s, screen {st['screen']:.3f} s, total {st['total']:.3f} s "
                   f"(load {st['load']:.2f})", flush=True)
         tot = [x["total"] for x in steps]
-        return {"model": model, "n_candidates": n_candidates, "K": s.sim.K, "m": s.sim.m, "n_sim": s.settings.n_sim,
+        return {"model": model, "criterion": s.criterion, "n_candidates": s.settings.n_candidates,
+                "threads": s.threads if s.joint else 1, "K": len(U), "m": s.model.m, "n_sim": s.settings.n_sim,
                 "start_s": round(t_start, 2), "start_cpu_s": round(c_start, 2), "first_proposal_s": round(t_first, 3),
                 "step_s_median": round(float(np.median(tot)), 3), "step_s_max": round(float(np.max(tot)), 3),
                 "max_s": {k: round(max(x[k] for x in steps), 3) for k in ("log", "update", "proposal", "screen")},
@@ -96,19 +100,27 @@ def bench(model: str, n_candidates: int, cache: str, config: str, verbose: bool 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--models", nargs="+", default=["s3m24"])
-    ap.add_argument("--n-candidates", nargs="*", default=["p2m7=500000", "s3m24=500000"], metavar="MODEL=N_F")
+    ap.add_argument("--n-candidates", nargs="*", default=None, metavar="MODEL=N_F",
+                    help="default: p2m7=500000 s3m24=500000 for the thesis's scheme; the session's own N for the joint")
     ap.add_argument("--cache", default=None, help="candidate-set cache folder (default: a fresh temporary one)")
     ap.add_argument("--config", default="config/config.yaml")
     ap.add_argument("--json", default=None, help="also write the results here")
+    ap.add_argument("--criterion", default="thesis", choices=["thesis", "joint_eig", "marginal_entropy"],
+                    help="thesis (default): Algorithms 7-9 with N_F of --n-candidates; joint_eig / marginal_entropy: "
+                         "the joint posterior with N of --n-candidates, or config clinician.session.<model> if not given")
+    ap.add_argument("--threads", type=int, default=0, help="the joint posterior's solver threads (0 = every core)")
     a = ap.parse_args(argv)
-    nf = {k: int(v) for k, v in (x.split("=") for x in a.n_candidates)}
+    spec = a.n_candidates if a.n_candidates is not None else (
+        ["p2m7=500000", "s3m24=500000"] if a.criterion == "thesis" else [])
+    nf = {k: int(v) for k, v in (x.split("=") for x in spec)}
     print(f"# bench_session: {platform.machine()} {platform.system()} {platform.release()}, python "
           f"{platform.python_version()}, cpus {len(os.sched_getaffinity(0))}, load average "
           f"{os.getloadavg()[0]:.2f}, {time.strftime('%Y-%m-%d %H:%M')}", flush=True)
     res = []
     for m in a.models:
         with tempfile.TemporaryDirectory() as cache:
-            r = bench(m, nf.get(m, 20000), a.cache or cache, a.config)
+            r = bench(m, nf.get(m, 20000 if a.criterion == "thesis" else None), a.cache or cache, a.config,
+                      criterion=a.criterion, threads=a.threads)
         print(json.dumps(r), flush=True)
         res.append(r)
     info = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
