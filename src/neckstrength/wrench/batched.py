@@ -274,7 +274,7 @@ class DirectionSolver:
         self.stats = DirectionStats()
         self._D: np.ndarray | None = None    # (m, len(bases)) dual bound vectors, in self.bases order
         self._D32: np.ndarray | None = None
-        self._miss_rate = 1.0                # share of the rows of the last call no cached basis fitted
+        self._miss_rate = 1.0                # share of the rows of the last call sent to HiGHS
         self._block_miss_rate = 0.0          # ... of the last block
         # scales for the tolerances (all linear in f, so they fold into the check matrices)
         m = self.m
@@ -649,7 +649,8 @@ class DirectionSolver:
         # blocks of growing size: the first rows discover the bases cheaply (each new basis
         # is checked against the open rows of its block), the later ones mostly hit the cache;
         # one block when the last call hardly needed HiGHS
-        calls = self.stats.highs_calls + self.stats.simplex_solved
+        # rows sent to HiGHS (not those of the dual simplex, which learns its bases part by part inside a block)
+        calls = self.stats.highs_calls
         s0, size = 0, (N if self.bases and self._miss_rate < WARM_MISS_RATE else BLOCK_START)
         while s0 < N:
             e = min(N, s0 + size)
@@ -661,7 +662,7 @@ class DirectionSolver:
             self._block_miss_rate = (self.stats.highs_calls - c0) / (e - s0)
             s0 = e
             size *= 2
-        self._miss_rate = (self.stats.highs_calls + self.stats.simplex_solved - calls) / N
+        self._miss_rate = (self.stats.highs_calls - calls) / N
         return w, status, alpha
 
     def _solve_block(self, F, F32, w, status, alpha, fmax):
