@@ -62,8 +62,9 @@ def main(argv=None) -> int:
     lb, ub = np.zeros((len(dirs), model.m)), np.ones((len(dirs), model.m))
     lb[:, mask] = np.clip(alpha[0][:, mask] - 0.05, 0, 1)
     ub[:, mask] = np.clip(alpha[0][:, mask] + 0.05, 0, 1)
+    groups = ", ".join(sorted({b for b, k in zip(base, mask) if k}))
     print(f"seed {seed}, participant {a.participant}: true mf ratio "
-          f"{definition.ratio(fa[None], f0, names)[0]:.2f}; EMG-bounded groups: {', '.join(sorted({b for b, k in zip(base, mask) if k}))}")
+          f"{definition.ratio(fa[None], f0, names)[0]:.2f}; EMG-bounded groups: {groups}")
     wb, _, stb = solve(model, fa[None], U, lb, ub)
     print(f"1. truth: bounded / unbounded maximum {np.min(wb[0] / w[0]):.4f}-{np.max(wb[0] / w[0]):.4f} over the "
           f"{len(dirs)} directions, statuses {sorted(set(stb[0].tolist()))} (0 = optimal)")
