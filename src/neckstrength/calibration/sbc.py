@@ -207,7 +207,10 @@ def run_sbc(model: ReducedModel, directions: pd.DataFrame, f_ref: np.ndarray, se
             if method == "joint":
                 truth, data = draw_participant(model, directions, f_ref, "truncnormal", joint.prior_sd_rel,
                                                settings.noise, rng)
-                rows += run_joint(model, data, truth, f_ref, joint, settings.checkpoints, rng, info, cache=cache)
+                # a fresh basis cache per participant: one shared with earlier participants fills with their
+                # bases and slows the solver (docs/clinician.md); the numbers are the same (exact solver)
+                rows += run_joint(model, data, truth, f_ref, joint, settings.checkpoints, rng, info,
+                                  cache=BasisCache())
             else:
                 truth, data = draw_participant(model, directions, f_ref, "lognormal", smc.prior_sigma,
                                                settings.noise, rng)
