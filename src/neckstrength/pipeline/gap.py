@@ -94,11 +94,9 @@ def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summar
     return df
 
 
-def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
-                        outputs: Mapping[str, str | Path]) -> dict[str, pd.DataFrame]:
-    """Withheld-effect benchmark; prints the confusion matrix (to the rule's log)."""
-    t0 = time.time()
-    directions = load_directions(directions_csv)
+def benchmark_setup(config: Mapping, model_name: str, directions: pd.DataFrame):
+    """The benchmark's context, generator settings, diagnosis settings (``gap.benchmark`` over ``gap``) and
+    generator stream, as the rule ``gap_benchmark`` uses them (also for ``benchmarks/bench_gap_benchmark.py``)."""
     ctx = gap_context(config, model_name, directions)
     b = config["gap"]["benchmark"]
     bs = benchmark_settings(config)
@@ -110,7 +108,17 @@ def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
                               "refine_iter": b.get("refine_iter", ds.refine_iter), "pairs_top": b.get("pairs_top",
                                                                                                       ds.pairs_top),
                               "reach_samples": 0, "reach_iter": 0, "calibration": cal})
-    rng = derive_rng(config["seed"], f"gap-benchmark/{model_name}")
+    return ctx, bs, ds, derive_rng(config["seed"], f"gap-benchmark/{model_name}")
+
+
+def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
+                        outputs: Mapping[str, str | Path]) -> dict[str, pd.DataFrame]:
+    """Withheld-effect benchmark; prints the confusion matrix (to the rule's log)."""
+    t0 = time.time()
+    directions = load_directions(directions_csv)
+    ctx, bs, ds, rng = benchmark_setup(config, model_name, directions)
+    b = config["gap"]["benchmark"]
+    cal = ds.calibration
     store = ResultStore(Path(outputs["summary"]).parent / "resume", ctx, ds)
     cases, diags, tabs = run_benchmark(ctx, bs, ds, rng, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}",
                                                                                   flush=True),
