@@ -4,7 +4,8 @@
 Generates exactly the cases of the rule ``gap_benchmark`` (same settings, same seed stream
 ``gap-benchmark/{model}``), but diagnoses them in a *stratified* order: every case gets the key
 ``(rank within its group + 0.5) / group size`` (group = injected effect and tier), so that any prefix of the
-order is a proportional sample of the design (controls, every effect, the mismatch tier). Each batch is stored in
+order is a proportional sample of the design (every effect, the mismatch tier; the controls twice as fast, so all
+of them are in the first half). Each batch is stored in
 the rule's resume folder (``results/gap/{model}/benchmark/resume``) as it finishes, so the rule later reuses it,
 and after each batch the cases done so far are scored (``score_benchmark``: per case, accuracy by detectability
 and size) into ``--out``. A run stopped by ``--max-seconds`` (or interrupted) leaves a valid stratified subset;
@@ -24,12 +25,16 @@ import time
 from pathlib import Path
 
 
-def stratified_order(cases) -> list[int]:
-    """Indices of ``cases`` such that every prefix samples each (label, tier) group in proportion to its size."""
+def stratified_order(cases, control_rate: float = 2.0) -> list[int]:
+    """Indices of ``cases`` such that every prefix samples each (label, tier) group in proportion to its size,
+    the controls (label 'none') ``control_rate`` times as fast (with 2: all controls within the first half), so
+    that a partial run has the controls the false-alarm rate needs. Within a group the generator's (shuffled)
+    order is kept."""
     groups: dict[tuple[str, str], list[int]] = {}
     for k, c in enumerate(cases):
         groups.setdefault((c.label, c.tier), []).append(k)
-    keyed = [((r + 0.5) / len(ix), g, r, k) for g, ix in groups.items() for r, k in enumerate(ix)]
+    keyed = [((r + 0.5) / len(ix) / (control_rate if g[0] == "none" else 1.0), g, r, k)
+             for g, ix in groups.items() for r, k in enumerate(ix)]
     return [k for *_, k in sorted(keyed)]
 
 
