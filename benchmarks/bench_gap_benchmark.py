@@ -6,7 +6,9 @@ Generates exactly the cases of the rule ``gap_benchmark`` (same settings, same s
 ``(rank within its group + 0.5) / group size`` (group = injected effect and tier), so that any prefix of the
 order is a proportional sample of the design (every effect, the mismatch tier; the controls twice as fast, so all
 of them are in the first half). Each batch is stored in
-the rule's resume folder (``results/gap/{model}/benchmark/resume``) as it finishes, so the rule later reuses it,
+the rule's resume folder (``results/gap/{model}/benchmark/resume``) as it finishes, so the rule later reuses it
+(the diagnoses are made blind without power tables and the power of each case's injected effect is simulated
+afterwards, as the rule does: ``neckstrength.gap.benchmark.benchmark_power``),
 and after each batch the cases done so far are scored (``score_benchmark``: per case, accuracy by detectability
 and size) into ``--out``. A run stopped by ``--max-seconds`` (or interrupted) leaves a valid stratified subset;
 a rerun resumes.
@@ -48,7 +50,7 @@ def main(argv=None) -> dict:
     a = ap.parse_args(argv)
 
     from neckstrength.config import build_directions, load_config
-    from neckstrength.gap.benchmark import blind, generate_cases, score_benchmark
+    from neckstrength.gap.benchmark import benchmark_power, blind, decision_settings, generate_cases, score_benchmark
     from neckstrength.gap.diagnose import diagnose
     from neckstrength.gap.store import ResultStore
     from neckstrength.io import atomic_write_csv, atomic_write_text
@@ -60,7 +62,9 @@ def main(argv=None) -> dict:
     ctx, bs, ds, rng = benchmark_setup(cfg, model, build_directions(cfg))
     cases = generate_cases(ctx, bs, rng)
     order = stratified_order(cases)
-    store = ResultStore(Path("results/gap") / model / "benchmark" / "resume", ctx, ds)
+    store = ResultStore(Path("results/gap") / model / "benchmark" / "resume", ctx, decision_settings(ds))
+    power_store = ResultStore(Path("results/gap") / model / "benchmark" / "resume", ctx, ds)
+    power: dict = {}
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
 
@@ -77,11 +81,12 @@ def main(argv=None) -> dict:
             break
         part = [cases[k] for k in order[a0:a0 + a.chunk]]
         tb = time.process_time()
-        diags = diagnose(ctx, blind(part), ds, say, store=store, chunk=a.chunk)
+        diags = diagnose(ctx, blind(part), decision_settings(ds), say, store=store, chunk=a.chunk)
+        power.update(benchmark_power(ctx, part, diags, ds, say, store=power_store, chunk=a.chunk))
         for c, d in zip(part, diags):
             done[c.name] = d
         sub = [c for c in cases if c.name in done]
-        tabs = score_benchmark(ctx, sub, [done[c.name] for c in sub], ds.epsilon)
+        tabs = score_benchmark(ctx, sub, [done[c.name] for c in sub], ds.epsilon, power)
         pc = tabs["per_case"]
         ctrl = pc[pc["injected"] == "none"]
         det = pc[(pc["injected"] != "none") & pc["detectable"]]

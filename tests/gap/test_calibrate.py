@@ -134,3 +134,28 @@ def test_benchmark_generator_tiers_noise_range_and_sizes(ctx_p2):
         inst = base_instance(ctx_p2) if e is None else compose(ctx_p2, [e], [c.theta[e.name]])
         alone = Simulator(ctx_p2, inst).forces(c.f_true[None])[0]
         assert np.allclose(alone, c.forces_clean) == (c.tier == "base")
+
+
+def test_decision_without_power_is_the_same_and_power_for_reproduces_the_power_table(ctx_p2):
+    # the benchmark diagnoses blind without power tables and simulates the power of the injected effect afterwards:
+    # the decision must not change, and power_for must give the diagnosis's own power rows of that effect
+    from dataclasses import replace
+
+    s = _settings(replicates=9, noise=0.01, power_sizes=(0.5, 1.0), power_replicates=2)
+    data = _data(ctx_p2)
+    full = dg.diagnose(ctx_p2, data, s)
+    bare = dg.diagnose(ctx_p2, data, replace(s, calibration=replace(s.calibration, power_replicates=0)))
+    for a, b in zip(full, bare):
+        assert a.summary["chosen"] == b.summary["chosen"] and a.summary["p_value"] == b.summary["p_value"]
+        # equal up to rounding (the solver's basis cache and block sizes depend on what else is fitted)
+        assert np.allclose(a.calibration.gap_obs, b.calibration.gap_obs, rtol=1e-9, atol=1e-12)
+        assert np.allclose(a.calibration.t_null, b.calibration.t_null, rtol=1e-7, atol=1e-9)
+        assert b.power.empty and b.power_summary.empty and b.summary["power"] == {}
+    want = [["kinematic"], ["cocontraction", "origin_offset"], []]
+    tabs = cb.power_for(ctx_p2, data, [b.calibration for b in bare], want, s)
+    assert [list(t["effect"].unique()) if len(t) else [] for t in tabs] == want
+    for a, t in zip(full, tabs):
+        if len(t):
+            ref = a.power[a.power["effect"].isin(t["effect"])].reset_index(drop=True)
+            pd.testing.assert_frame_equal(t.reset_index(drop=True), ref)   # same hits, same power
+    assert any(t["replicates"].sum() > 0 for t in tabs)

@@ -22,7 +22,7 @@ from neckstrength.config import (
     gap_withheld_activations,
     head_from_config,
 )
-from neckstrength.gap.benchmark import run_benchmark
+from neckstrength.gap.benchmark import decision_settings, run_benchmark
 from neckstrength.gap.diagnose import DiagnosisSettings
 from neckstrength.gap.report import markdown_table
 from neckstrength.gap.run import run_diagnosis
@@ -119,10 +119,11 @@ def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
     ctx, bs, ds, rng = benchmark_setup(config, model_name, directions)
     b = config["gap"]["benchmark"]
     cal = ds.calibration
-    store = ResultStore(Path(outputs["summary"]).parent / "resume", ctx, ds)
+    store = ResultStore(Path(outputs["summary"]).parent / "resume", ctx, decision_settings(ds))
+    power_store = ResultStore(Path(outputs["summary"]).parent / "resume", ctx, ds)
     cases, diags, tabs = run_benchmark(ctx, bs, ds, rng, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}",
                                                                                   flush=True),
-                                       store=store, chunk=b.get("chunk"))
+                                       store=store, chunk=b.get("chunk"), power_store=power_store)
     hdr = [f"withheld-effect benchmark ({model_name}): {len(cases)} cases ({bs.mismatch_replicates} per effect with "
            f"finer muscle control in the truth), noise {bs.noise_rel} (log-normal SD), strength spread "
            f"{bs.strength_spread}, effect size {bs.clear_size} of the way to the far bound",
