@@ -116,6 +116,8 @@ def test_accuracy_table_splits_by_detectability():
     assert t.loc["effect cases, detectable by the case's power analysis", "share_correct"] == 0.5
     assert t.loc["effect cases, not detectable by the power analysis", "cases"] == 1
     assert t.loc["controls (no effect): correct = none", "goal_met"] == "no"            # 0.5 < 0.9
+    assert t.loc["controls (no effect): correct = none", "named_wrong_effect"] == 1     # the false alarm
+    assert t.loc["effect cases, detectable by the case's power analysis", "named_wrong_effect"] == 0
     assert t.loc["injected a", "cases"] == 2 and t.loc["injected b", "share_correct"] == 1.0
     lo, hi = t.loc["injected b", ["ci95_low", "ci95_high"]]
     assert 0 < lo < 1 and hi == 1.0

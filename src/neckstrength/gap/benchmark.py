@@ -224,6 +224,8 @@ def accuracy_table(pc: pd.DataFrame) -> pd.DataFrame:
         rows.append({"group": group, "cases": n, "correct": k, "share_correct": share,
                      "ci95_low": lo, "ci95_high": hi,
                      "named_any_effect": int((g["identified"] != "none").sum()) if n else 0,
+                     "named_wrong_effect": int(((g["identified"] != "none") & ~g["correct"].astype(bool)).sum())
+                     if n else 0,
                      "goal_share_correct": goal,
                      "goal_met": ("" if not np.isfinite(goal) else "no cases" if n == 0
                                   else "yes" if share >= goal else "no")})

@@ -147,6 +147,9 @@ def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
             if len(tabs["effect_size"]) else None,
             "false_alarm_rate": false_alarm if len(ctrl) else None, "controls": len(ctrl),
             "accuracy_detectable": acc_det if len(det) else None, "detectable_cases": len(det),
+            "effect_cases_wrong_effect_named": int(((pc["injected"] != "none") & (pc["identified"] != "none")
+                                                    & ~pc["correct"]).sum()),
+            "effect_cases": int((pc["injected"] != "none").sum()),
             "goal_accuracy_detectable": 0.8, "goal_false_alarm": 0.1,
             "goals_met": bool(len(det) and len(ctrl) and acc_det >= 0.8 and false_alarm <= 0.1),
             "seconds": time.time() - t0}
@@ -156,7 +159,9 @@ def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
             f"{1 / n_cand:.2f}); identified and injected share an effect in {summ['overlap_rate']:.2f} of cases.", "",
             "## Accuracy by detectability (goals: >= 0.80 on detectable cases, <= 0.10 false alarms)", "",
             f"False alarms on controls: {false_alarm:.2f} ({len(ctrl)} controls); correct on cases the power analysis "
-            f"calls detectable: {acc_det:.2f} ({len(det)} cases).", "", markdown_table(tabs["accuracy"]), "",
+            f"calls detectable: {acc_det:.2f} ({len(det)} cases); a wrong effect named in "
+            f"{summ['effect_cases_wrong_effect_named']} of {summ['effect_cases']} effect cases. Intervals: exact "
+            "(Clopper-Pearson) 95%.", "", markdown_table(tabs["accuracy"]), "",
             "## Per case", "", markdown_table(pc), "", "## Effect size", "",
             markdown_table(tabs["effect_size"]), ""]
     atomic_write_text("\n".join(text), outputs["report"])
@@ -166,6 +171,7 @@ def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
     print("\naccuracy by detectability:")
     print(tabs["accuracy"].to_string(index=False))
     print(f"\nfalse alarms on controls {false_alarm:.2f} (goal <= 0.10); correct on detectable cases {acc_det:.2f} "
-          f"(goal >= 0.80, {len(det)} cases); overall accuracy {acc:.2f} vs chance {1 / n_cand:.2f}; "
+          f"(goal >= 0.80, {len(det)} cases); a wrong effect named in {summ['effect_cases_wrong_effect_named']} of "
+          f"{summ['effect_cases']} effect cases; overall accuracy {acc:.2f} vs chance {1 / n_cand:.2f}; "
           f"{time.time() - t0:.0f} s")
     return tabs
