@@ -110,7 +110,8 @@ def test_results_are_stored_per_data_set_and_a_rerun_resumes(ctx_p2, tmp_path, m
 def test_accuracy_table_splits_by_detectability():
     pc = pd.DataFrame({"injected": ["none", "none", "a", "a", "b"], "identified": ["none", "a", "a", "none", "b"],
                        "correct": [True, False, True, False, True], "detectable": [False, False, True, True, False],
-                       "tier": ["base"] * 5, "size_share": [0.0, 0.0, 0.9, 0.5, 0.3]})
+                       "tier": ["base"] * 5, "size_share": [0.0, 0.0, 0.9, 0.5, 0.3],
+                       "min_detectable_share": [np.nan, np.nan, 0.5, 0.5, 1.0]})
     t = accuracy_table(pc).set_index("group")
     assert t.loc["controls (no effect): correct = none", "share_correct"] == 0.5
     assert t.loc["effect cases, detectable by the case's power analysis", "share_correct"] == 0.5
@@ -119,6 +120,8 @@ def test_accuracy_table_splits_by_detectability():
     assert t.loc["controls (no effect): correct = none", "named_wrong_effect"] == 1     # the false alarm
     assert t.loc["effect cases, detectable by the case's power analysis", "named_wrong_effect"] == 0
     assert t.loc["injected a", "cases"] == 2 and t.loc["injected b", "share_correct"] == 1.0
+    assert t.loc["effect cases whose effect is detectable at some simulated size (whatever the injected size)",
+                 "cases"] == 3
     lo, hi = t.loc["injected b", ["ci95_low", "ci95_high"]]
     assert 0 < lo < 1 and hi == 1.0
 

@@ -235,6 +235,9 @@ def accuracy_table(pc: pd.DataFrame) -> pd.DataFrame:
     eff = ~ctrl
     add("effect cases, detectable by the case's power analysis", eff & pc["detectable"], 0.8)
     add("effect cases, not detectable by the power analysis", eff & ~pc["detectable"])
+    some = eff & np.isfinite(pc["min_detectable_share"].astype(float)) if "min_detectable_share" in pc else eff & False
+    add("effect cases whose effect is detectable at some simulated size (whatever the injected size)", some)
+    add("effect cases whose effect is undetectable at every simulated size", eff & ~some)
     for tier in sorted(set(pc["tier"])):
         add(f"effect cases, tier {tier}, detectable", eff & pc["detectable"] & (pc["tier"] == tier))
         add(f"effect cases, tier {tier}, all", eff & (pc["tier"] == tier))
