@@ -167,6 +167,7 @@ def score_benchmark(ctx: GapContext, cases: Sequence[Case], diags: Sequence[Data
         min_share = (float(pws.set_index("effect").loc[c.label, "min_detectable_share"])
                      if len(pws) and c.label in set(pws["effect"]) else np.nan)
         rows.append({"case": c.name, "injected": c.label, "tier": c.tier, "noise": c.noise,
+                     "noise_estimated": float(d.summary.get("noise_sigma", np.nan)),
                      "size_share": c.size_share, "min_detectable_share": min_share,
                      "detectable": bool(np.isfinite(min_share) and c.size_share >= min_share),
                      "p_value": d.summary.get("p_value", np.nan),
