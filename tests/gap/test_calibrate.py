@@ -110,11 +110,32 @@ def test_results_are_stored_per_data_set_and_a_rerun_resumes(ctx_p2, tmp_path, m
 def test_accuracy_table_splits_by_detectability():
     pc = pd.DataFrame({"injected": ["none", "none", "a", "a", "b"], "identified": ["none", "a", "a", "none", "b"],
                        "correct": [True, False, True, False, True], "detectable": [False, False, True, True, False],
-                       "tier": ["base"] * 5, "size_share": [0.0, 0.0, 0.9, 0.5, 0.3]})
+                       "tier": ["base"] * 5, "size_share": [0.0, 0.0, 0.9, 0.5, 0.3],
+                       "min_detectable_share": [np.nan, np.nan, 0.5, 0.5, 1.0]})
     t = accuracy_table(pc).set_index("group")
     assert t.loc["controls (no effect): correct = none", "share_correct"] == 0.5
     assert t.loc["effect cases, detectable by the case's power analysis", "share_correct"] == 0.5
     assert t.loc["effect cases, not detectable by the power analysis", "cases"] == 1
+    assert t.loc["controls (no effect): correct = none", "goal_met"] == "no"            # 0.5 < 0.9
+    assert t.loc["controls (no effect): correct = none", "named_wrong_effect"] == 1     # the false alarm
+    assert t.loc["effect cases, detectable by the case's power analysis", "named_wrong_effect"] == 0
+    assert t.loc["injected a", "cases"] == 2 and t.loc["injected b", "share_correct"] == 1.0
+    assert t.loc["effect cases whose effect is detectable at some simulated size (whatever the injected size)",
+                 "cases"] == 3
+    lo, hi = t.loc["injected b", ["ci95_low", "ci95_high"]]
+    assert 0 < lo < 1 and hi == 1.0
+
+
+def test_share_interval_is_clopper_pearson():
+    from neckstrength.gap.benchmark import share_interval
+
+    lo, hi = share_interval(0, 8)
+    assert lo == 0.0 and hi == pytest.approx(1 - 0.025 ** (1 / 8))      # closed form for k = 0
+    lo, hi = share_interval(8, 8)
+    assert hi == 1.0 and lo == pytest.approx(0.025 ** (1 / 8))
+    lo, hi = share_interval(5, 10)
+    assert lo == pytest.approx(0.187, abs=1e-3) and hi == pytest.approx(0.813, abs=1e-3)   # tabulated
+    assert all(np.isnan(share_interval(0, 0)))
 
 
 def test_benchmark_generator_tiers_noise_range_and_sizes(ctx_p2):
@@ -134,3 +155,53 @@ def test_benchmark_generator_tiers_noise_range_and_sizes(ctx_p2):
         inst = base_instance(ctx_p2) if e is None else compose(ctx_p2, [e], [c.theta[e.name]])
         alone = Simulator(ctx_p2, inst).forces(c.f_true[None])[0]
         assert np.allclose(alone, c.forces_clean) == (c.tier == "base")
+
+
+def test_decision_without_power_is_the_same_and_power_for_reproduces_the_power_table(ctx_p2):
+    # the benchmark diagnoses blind without power tables and simulates the power of the injected effect afterwards:
+    # the decision must not change, and power_for must give the diagnosis's own power rows of that effect
+    from dataclasses import replace
+
+    s = _settings(replicates=9, noise=0.01, power_sizes=(0.5, 1.0), power_replicates=2)
+    data = _data(ctx_p2)
+    full = dg.diagnose(ctx_p2, data, s)
+    bare = dg.diagnose(ctx_p2, data, replace(s, calibration=replace(s.calibration, power_replicates=0)))
+    for a, b in zip(full, bare):
+        assert a.summary["chosen"] == b.summary["chosen"] and a.summary["p_value"] == b.summary["p_value"]
+        # equal up to rounding (the solver's basis cache and block sizes depend on what else is fitted)
+        assert np.allclose(a.calibration.gap_obs, b.calibration.gap_obs, rtol=1e-9, atol=1e-12)
+        assert np.allclose(a.calibration.t_null, b.calibration.t_null, rtol=1e-7, atol=1e-9)
+        assert b.power.empty and b.power_summary.empty and b.summary["power"] == {}
+    want = [["kinematic"], ["cocontraction", "origin_offset"], []]
+    tabs = cb.power_for(ctx_p2, data, [b.calibration for b in bare], want, s)
+    assert [list(t["effect"].unique()) if len(t) else [] for t in tabs] == want
+    for a, t in zip(full, tabs):
+        if len(t):
+            ref = a.power[a.power["effect"].isin(t["effect"])].reset_index(drop=True)
+            pd.testing.assert_frame_equal(t.reset_index(drop=True), ref)   # same hits, same power
+    assert any(t["replicates"].sum() > 0 for t in tabs)
+
+
+def test_benchmark_power_only_for_single_effect_cases_and_resumes(ctx_p2, tmp_path, monkeypatch):
+    from neckstrength.gap import benchmark as bm
+
+    bs = bm.BenchmarkSettings(effects=("kinematic",), replicates=1, controls=1, noise_rel=0.01, clear_size=(0.8, 0.9))
+    cases = bm.generate_cases(ctx_p2, bs, np.random.default_rng(5))
+    s = _settings(replicates=4, noise=0.01, power_sizes=(1.0,), power_replicates=2)
+    diags = dg.diagnose(ctx_p2, bm.blind(cases), bm.decision_settings(s))
+    assert all(d.power.empty for d in diags)
+    store = ResultStore(tmp_path, ctx_p2, s)
+    pw = bm.benchmark_power(ctx_p2, cases, diags, s, store=store)
+    kin = next(c.name for c in cases if c.label == "kinematic")
+    assert set(pw) == {kin} and list(pw[kin]["effect"]) == ["kinematic"]
+
+    def boom(*a, **k):
+        raise AssertionError("power simulated again")
+
+    monkeypatch.setattr(bm, "power_for", boom)
+    again = bm.benchmark_power(ctx_p2, cases, diags, s, store=store)
+    pd.testing.assert_frame_equal(again[kin], pw[kin])
+    tabs = bm.score_benchmark(ctx_p2, cases, diags, s.epsilon, pw)
+    row = tabs["per_case"].set_index("case").loc[kin]
+    assert row["min_detectable_share"] == pw[kin]["min_detectable_share"].iloc[0] or (
+        np.isnan(row["min_detectable_share"]) and np.isnan(pw[kin]["min_detectable_share"].iloc[0]))

@@ -14,16 +14,19 @@ the noiseless forces exactly, i.e. the noise floor).
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
 import pandas as pd
+from scipy.stats import beta as beta_dist
 
 from neckstrength.estimation.discrepancy import data_discrepancy
+from neckstrength.gap.calibrate import power_for, power_summary
 from neckstrength.gap.diagnose import BlindData, DatasetDiagnosis, DiagnosisSettings, diagnose
 from neckstrength.gap.effects import EFFECTS, GapContext, available_effects, compose, effect_label, parse_label
 from neckstrength.gap.fit import Simulator, make_cache
+from neckstrength.wrench.batched import single_threaded_blas
 
 
 @dataclass(frozen=True)
@@ -144,9 +147,12 @@ def _theta_from(diag: DatasetDiagnosis, effect: str):
 
 
 def score_benchmark(ctx: GapContext, cases: Sequence[Case], diags: Sequence[DatasetDiagnosis],
-                    epsilon: float = 3.0) -> dict[str, pd.DataFrame]:
-    """Confusion matrix, per-case table (identified vs injected, gaps) and effect-size errors."""
+                    epsilon: float = 3.0, power: dict[str, pd.DataFrame] | None = None) -> dict[str, pd.DataFrame]:
+    """Confusion matrix, per-case table (identified vs injected, gaps) and effect-size errors. ``power``: per
+    case name, a power summary (:func:`neckstrength.gap.calibrate.power_summary`) to use instead of the
+    diagnosis's own (:func:`benchmark_power`)."""
     by_name = {d.name: d for d in diags}
+    power = power or {}
     rows, size_rows = [], []
     for c in cases:
         d = by_name[c.name]
@@ -157,10 +163,11 @@ def score_benchmark(ctx: GapContext, cases: Sequence[Case], diags: Sequence[Data
         gap_inj = float(tab.loc[c.label, "gap_cv"]) if c.label in tab.index else np.nan
         floor = float(1 - data_discrepancy(c.forces_clean, c.forces, epsilon).mean())
         possible = gap_base - floor
-        pws = d.power_summary
+        pws = power.get(c.name, d.power_summary)
         min_share = (float(pws.set_index("effect").loc[c.label, "min_detectable_share"])
                      if len(pws) and c.label in set(pws["effect"]) else np.nan)
         rows.append({"case": c.name, "injected": c.label, "tier": c.tier, "noise": c.noise,
+                     "noise_estimated": float(d.summary.get("noise_sigma", np.nan)),
                      "size_share": c.size_share, "min_detectable_share": min_share,
                      "detectable": bool(np.isfinite(min_share) and c.size_share >= min_share),
                      "p_value": d.summary.get("p_value", np.nan),
@@ -192,36 +199,108 @@ def score_benchmark(ctx: GapContext, cases: Sequence[Case], diags: Sequence[Data
             "accuracy": accuracy_table(per_case)}
 
 
+def share_interval(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Clopper-Pearson (exact binomial) interval of a share ``k / n``: its coverage is at least ``level`` for
+    every true share (conservative), so a benchmark's small counts are not overread."""
+    if n == 0:
+        return (np.nan, np.nan)
+    a = (1 - level) / 2
+    lo = float(beta_dist.ppf(a, k, n - k + 1)) if k > 0 else 0.0
+    hi = float(beta_dist.ppf(1 - a, k + 1, n - k)) if k < n else 1.0
+    return lo, hi
+
+
 def accuracy_table(pc: pd.DataFrame) -> pd.DataFrame:
-    """Share correct by group: controls (false alarms), effect cases by detectability (item 3's power) and by
-    injected size, per tier."""
+    """Share correct by group: controls (false alarms), effect cases by detectability (item 3's power), by tier,
+    by injected size and by injected effect, each with its exact 95% interval (:func:`share_interval`) and, for
+    the two groups issue 17 sets goals for, the goal (>= 0.8 correct on detectable cases; <= 0.1 false alarms,
+    i.e. >= 0.9 correct controls) and whether the observed share meets it."""
     rows = []
 
-    def add(group, sel):
+    def add(group, sel, goal=np.nan):
         g = pc[sel]
-        rows.append({"group": group, "cases": len(g), "correct": int(g["correct"].sum()) if len(g) else 0,
-                     "share_correct": float(g["correct"].mean()) if len(g) else np.nan,
-                     "named_any_effect": int((g["identified"] != "none").sum()) if len(g) else 0})
+        k, n = (int(g["correct"].sum()), len(g)) if len(g) else (0, 0)
+        lo, hi = share_interval(k, n)
+        share = k / n if n else np.nan
+        rows.append({"group": group, "cases": n, "correct": k, "share_correct": share,
+                     "ci95_low": lo, "ci95_high": hi,
+                     "named_any_effect": int((g["identified"] != "none").sum()) if n else 0,
+                     "named_wrong_effect": int(((g["identified"] != "none") & ~g["correct"].astype(bool)).sum())
+                     if n else 0,
+                     "goal_share_correct": goal,
+                     "goal_met": ("" if not np.isfinite(goal) else "no cases" if n == 0
+                                  else "yes" if share >= goal else "no")})
 
     ctrl = pc["injected"] == "none"
-    add("controls (no effect): correct = none", ctrl)
+    add("controls (no effect): correct = none", ctrl, 0.9)
     eff = ~ctrl
-    add("effect cases, detectable by the case's power analysis", eff & pc["detectable"])
+    add("effect cases, detectable by the case's power analysis", eff & pc["detectable"], 0.8)
     add("effect cases, not detectable by the power analysis", eff & ~pc["detectable"])
+    some = eff & np.isfinite(pc["min_detectable_share"].astype(float)) if "min_detectable_share" in pc else eff & False
+    add("effect cases whose effect is detectable at some simulated size (whatever the injected size)", some)
+    add("effect cases whose effect is undetectable at every simulated size", eff & ~some)
     for tier in sorted(set(pc["tier"])):
         add(f"effect cases, tier {tier}, detectable", eff & pc["detectable"] & (pc["tier"] == tier))
+        add(f"effect cases, tier {tier}, all", eff & (pc["tier"] == tier))
     for lo, hi in ((0.0, 0.4), (0.4, 0.7), (0.7, 1.01)):
         add(f"effect cases, injected size {lo:g}-{min(hi, 1):g} of the range", eff & (pc["size_share"] >= lo)
             & (pc["size_share"] < hi))
+    for e in sorted(set(pc.loc[eff, "injected"])):
+        add(f"injected {e}", pc["injected"] == e)
     return pd.DataFrame(rows)
 
 
+def benchmark_power(ctx: GapContext, cases: Sequence[Case], diags: Sequence[DatasetDiagnosis],
+                    ds: DiagnosisSettings, progress=None, store=None, chunk: int | None = None
+                    ) -> dict[str, pd.DataFrame]:
+    """Power summary of each single-effect case for its injected effect only (scoring side: the case's label
+    chooses which effect's power is simulated; the diagnosis's decision, made blind, does not use the power).
+
+    The same simulated data sets, screen and decision as the diagnosis's own power table would use for that
+    effect (:func:`neckstrength.gap.calibrate.power_for` with the case's calibration), i.e. 8 instead of
+    ``9 effects x 8`` simulated data sets per case. ``store``/``chunk`` as in
+    :func:`neckstrength.gap.diagnose.diagnose` (stored as each batch finishes; an interrupted run resumes)."""
+    say = progress or (lambda msg: None)
+    by_name = {d.name: d for d in diags}
+    todo = [c for c in cases if len(c.injected) == 1 and by_name[c.name].calibration is not None
+            and ds.calibration.power_replicates > 0]
+    key = {c.name: BlindData(f"{c.name}/power/{c.label}", c.forces.copy()) for c in todo}
+    out = {}
+    for c in todo:
+        got = store.get(key[c.name]) if store is not None else None
+        if got is not None:
+            out[c.name] = got
+    rest = [c for c in todo if c.name not in out]
+    n = max(1, int(chunk)) if chunk else max(1, len(rest))
+    with single_threaded_blas():
+        for a in range(0, len(rest), n):
+            part = rest[a:a + n]
+            say(f"power of the injected effect: cases {a + 1}-{a + len(part)} of {len(rest)} "
+                f"({len(todo) - len(rest)} resumed)")
+            tabs = power_for(ctx, blind(part), [by_name[c.name].calibration for c in part],
+                             [[c.label] for c in part], ds, say)
+            for c, t in zip(part, tabs):
+                out[c.name] = power_summary(t, ds.calibration.power_target)
+                if store is not None:
+                    store.put(key[c.name], out[c.name])
+    return out
+
+
 def run_benchmark(ctx: GapContext, bs: BenchmarkSettings, ds: DiagnosisSettings, rng: np.random.Generator,
-                  progress=None, store=None, chunk: int | None = None):
+                  progress=None, store=None, chunk: int | None = None, power_store=None):
     """Generate, diagnose blind (``store``/``chunk``: see :func:`neckstrength.gap.diagnose.diagnose`), score.
-    Returns (cases, diagnoses, score tables)."""
+
+    The diagnoses are made without their power tables (``power_replicates`` 0: the same decision, see
+    :func:`neckstrength.gap.calibrate.calibrate`); the detectability of each case's injected effect comes from
+    :func:`benchmark_power` (stored in ``power_store``). Returns (cases, diagnoses, score tables)."""
     cases = generate_cases(ctx, bs, rng)
     if progress:
         progress(f"benchmark: {len(cases)} cases generated (labels withheld from the diagnosis)")
-    diags = diagnose(ctx, blind(cases), ds, progress, store=store, chunk=chunk)
-    return cases, diags, score_benchmark(ctx, cases, diags, ds.epsilon)
+    diags = diagnose(ctx, blind(cases), decision_settings(ds), progress, store=store, chunk=chunk)
+    power = benchmark_power(ctx, cases, diags, ds, progress, store=power_store, chunk=chunk)
+    return cases, diags, score_benchmark(ctx, cases, diags, ds.epsilon, power)
+
+
+def decision_settings(ds: DiagnosisSettings) -> DiagnosisSettings:
+    """The benchmark's diagnosis settings: as ``ds`` without the power tables (the decision is the same)."""
+    return replace(ds, calibration=replace(ds.calibration, power_replicates=0))

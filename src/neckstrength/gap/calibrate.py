@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from neckstrength.gap.effects import Effect, GapContext, base_instance, compose
+from neckstrength.gap.effects import Effect, GapContext, available_effects, base_instance, compose
 from neckstrength.gap.engine import (
     BlindData,
     CalibrationSettings,
@@ -52,6 +52,7 @@ from neckstrength.gap.engine import (
     _d,
     _Engine,
     cv_predictions,
+    direction_folds,
     single_effect_grids,
 )
 from neckstrength.gap.fit import FitSettings, Simulator
@@ -149,6 +150,8 @@ class Calibration:
     power: pd.DataFrame
     gap_obs: np.ndarray          # (1 + E) the measured data set's screen: held-out gaps
     structure_obs: np.ndarray    # (1 + E) and plane structure of its held-out log residuals
+    phi_fit: np.ndarray | None = None   # the base fit on all directions (log free strengths) the null is drawn
+    f_fit: np.ndarray | None = None     # around, and its forces
 
     def decide(self, gap: np.ndarray) -> dict:
         """``gap``: held-out gaps ('none' first, then the effects in ``effects`` order) of one data set."""
@@ -195,11 +198,76 @@ def estimate_noise(rms_heldout: np.ndarray, setting) -> tuple[float, str]:
     return float(np.nanmin(rms_heldout)), "heldout"
 
 
+def _truth_phis(sim_base: Simulator, phi_fit: np.ndarray, T: np.ndarray, sigma: float, cs: CalibrationSettings,
+                name: str, seed: int) -> np.ndarray:
+    """Truth log strengths of a data set's simulated data sets: rows ``0..R-1`` the noise-only ones, then
+    ``power_replicates`` per power size. Drawn row by row from one stream, so the first rows do not depend on
+    how many power replicates follow (a diagnosis without power draws the same null)."""
+    n_pow = len(cs.power_sizes) * cs.power_replicates
+    return truth_strengths(sim_base, phi_fit, T, sigma, cs.strength_spread, int(cs.replicates) + n_pow,
+                           derive_rng(seed, f"gap/truth/{name}"))
+
+
+def _power_sets(ctx: GapContext, names: list[str], phis: dict, f_fit: np.ndarray, sigmas: list[float],
+                effects_of: list[list[Effect]], cs: CalibrationSettings, seed: int):
+    """Simulated data sets with an effect: per data set ``i`` and effect in ``effects_of[i]``, per size in
+    ``power_sizes``, ``power_replicates`` data sets from the data set's truth strengths (rows after the null's)
+    with the effect at that size (upper and lower bound alternating) and log-normal noise ``sigmas[i]``.
+    Returns the data sets and, per draw, (data set, 'power' or 'skip' (a direction the truth cannot produce),
+    effect, size)."""
+    R, K, P = int(cs.replicates), ctx.K, cs.power_replicates
+    sims, meta = [], []
+    union = list({e.name: e for es in effects_of for e in es}.values())
+    for e in union:
+        who = [i for i in range(len(names)) if any(x.name == e.name for x in effects_of[i])]
+        for a, u in enumerate(cs.power_sizes):
+            truth = {}
+            for sign in (1, -1):
+                sim = Simulator(ctx, compose(ctx, [e], [size_theta(e, u, sign)]))
+                truth[sign] = {i: sim.forces(sim.muscles(phis[i][R + a * P:R + (a + 1) * P])) if P
+                               else np.zeros((0, K)) for i in who}
+            for i in who:
+                n = names[i]
+                z = derive_rng(seed, f"gap/power/{n}/{e.name}/{u:.6g}").normal(0.0, 1.0, (P, K))
+                for r in range(P):
+                    f = truth[1 if r % 2 == 0 else -1][i][r]
+                    ok = bool(np.all(f > 0.05 * np.median(f_fit[i])))
+                    meta.append((i, "power", e.name, float(u)) if ok else (i, "skip", e.name, float(u)))
+                    if ok:
+                        sims.append(BlindData(f"{n}/power/{e.name}/{u:.6g}/{r}", f * np.exp(sigmas[i] * z[r])))
+    return sims, meta
+
+
+def _power_table(cal: Calibration, i: int, effects: list[Effect], cs: CalibrationSettings, meta: list,
+                 gaps: np.ndarray) -> pd.DataFrame:
+    """Power per effect and size of data set ``i``: share of its simulated data sets (``meta`` rows that were
+    screened, ``gaps`` their screen gaps in the same order; 'skip' rows counted) in which ``cal`` names the
+    effect."""
+    ok = [m for m in meta if m[1] != "skip"]
+    prow = []
+    for e in effects:
+        for u in cs.power_sizes:
+            rr = [j for j, m in enumerate(ok) if m[0] == i and m[1] == "power" and m[2] == e.name
+                  and m[3] == float(u)]
+            skipped = sum(1 for m in meta if m[0] == i and m[1] == "skip" and m[2] == e.name and m[3] == float(u))
+            hits = 0
+            for j in rr:
+                d = cal.decide(gaps[j])
+                hits += int(d["p_adjusted"] <= cs.alpha and d["best"] == e.name and d["delta"][cal.effects.index(
+                    e.name)] > 0)
+            prow.append({"effect": e.name, "size_share": u, "theta": e.describe(size_theta(e, u, 1)),
+                         "replicates": len(rr), "skipped_unproducible": skipped, "identified": hits,
+                         "power": hits / len(rr) if rr else np.nan})
+    return pd.DataFrame(prow)
+
+
 def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarray, f_fit: np.ndarray,
               phi_fit: np.ndarray, rms_obs: np.ndarray, effects: list[Effect], s: DiagnosisSettings,
               say=None) -> list[Calibration]:
     """Null and power replicates for every data set (``names``, fold splits, measured forces ``T``, base fit
-    forces ``f_fit`` and log strengths ``phi_fit``, held-out RMS log residuals per candidate ``rms_obs``)."""
+    forces ``f_fit`` and log strengths ``phi_fit``, held-out RMS log residuals per candidate ``rms_obs``).
+    With ``power_replicates`` 0 there is no power table (the decision is the same: every data set is screened
+    on its own, whatever else is screened with it); :func:`power_for` adds one later."""
     say = say or (lambda msg: None)
     cs: CalibrationSettings = s.calibration
     R, nd, K = int(cs.replicates), len(names), ctx.K
@@ -208,32 +276,18 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
     sims, meta = [], []                                    # simulated data sets and (data set, kind, effect, size)
     sim_base = Simulator(ctx, base_instance(ctx))
     phis = {}                                              # truth log strengths per data set: (R + power reps) x p
-    n_pow = len(cs.power_sizes) * cs.power_replicates
     for i, n in enumerate(names):
-        phis[i] = truth_strengths(sim_base, phi_fit[i], T[i], sig[i][0], cs.strength_spread, R + n_pow,
-                                  derive_rng(s.seed, f"gap/truth/{n}"))
+        phis[i] = _truth_phis(sim_base, phi_fit[i], T[i], sig[i][0], cs, n, s.seed)
         f_null = sim_base.forces(sim_base.muscles(phis[i][:R])) if R else np.zeros((0, K))
         f_null = np.maximum(f_null, 1e-3 * np.median(f_fit[i]))       # a direction the draw cannot produce
         z = derive_rng(s.seed, f"gap/null/{n}").normal(0.0, 1.0, (R, K))
         for r in range(R):
             sims.append(BlindData(f"{n}/null{r}", f_null[r] * np.exp(sig[i][0] * z[r])))
             meta.append((i, "null", "", 0.0))
-    for e in effects:
-        for a, u in enumerate(cs.power_sizes):
-            truth = {}
-            for sign in (1, -1):
-                sim = Simulator(ctx, compose(ctx, [e], [size_theta(e, u, sign)]))
-                truth[sign] = [sim.forces(sim.muscles(phis[i][R + a * cs.power_replicates:
-                                                               R + (a + 1) * cs.power_replicates]))
-                               for i in range(nd)] if cs.power_replicates else [np.zeros((0, K))] * nd
-            for i, n in enumerate(names):
-                z = derive_rng(s.seed, f"gap/power/{n}/{e.name}/{u:.6g}").normal(0.0, 1.0, (cs.power_replicates, K))
-                for r in range(cs.power_replicates):
-                    f = truth[1 if r % 2 == 0 else -1][i][r]
-                    ok = bool(np.all(f > 0.05 * np.median(f_fit[i])))
-                    meta.append((i, "power", e.name, float(u)) if ok else (i, "skip", e.name, float(u)))
-                    if ok:
-                        sims.append(BlindData(f"{n}/power/{e.name}/{u:.6g}/{r}", f * np.exp(sig[i][0] * z[r])))
+    if cs.power_replicates > 0:
+        ps, pm = _power_sets(ctx, names, phis, f_fit, [sg[0] for sg in sig], [list(effects)] * nd, cs, s.seed)
+        sims += ps
+        meta += pm
     for i, n in enumerate(names):                          # the measured data sets, screened alike
         sims.append(BlindData(n, T[i]))
         meta.append((i, "observed", "", 0.0))
@@ -252,31 +306,47 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
         mu = delta_null.mean(axis=0)
         sd = np.maximum(delta_null.std(axis=0, ddof=1) if R > 1 else np.zeros(len(E)), cs.sd_floor)
         _, _, t_null, _ = maxt(delta_null, mu, sd, np.zeros(0))
-        jo = [j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "observed"][0]
+        jo = next(j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "observed")
         cal = Calibration(sig[i][0], sig[i][1], E, delta_null, mu, sd, t_null, gap_null, sc.structure[rows],
-                          pd.DataFrame(), sc.gap[jo], sc.structure[jo])
-        prow = []
-        for e in effects:
-            for u in cs.power_sizes:
-                rr = [j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "power" and m[2] == e.name
-                      and m[3] == float(u)]
-                skipped = sum(1 for m in meta if m[0] == i and m[1] == "skip" and m[2] == e.name and m[3] == float(u))
-                hits = 0
-                for j in rr:
-                    d = cal.decide(sc.gap[j])
-                    hits += int(d["p_adjusted"] <= cs.alpha and d["best"] == e.name and d["delta"][E.index(e.name)] > 0)
-                pw = hits / len(rr) if rr else np.nan
-                prow.append({"effect": e.name, "size_share": u, "theta": e.describe(size_theta(e, u, 1)),
-                             "replicates": len(rr), "skipped_unproducible": skipped, "identified": hits,
-                             "power": pw})
-        cal.power = pd.DataFrame(prow)
+                          pd.DataFrame(), sc.gap[jo], sc.structure[jo], np.asarray(phi_fit[i], float).copy(),
+                          np.asarray(f_fit[i], float).copy())
+        if cs.power_replicates > 0:
+            cal.power = _power_table(cal, i, effects, cs, meta, sc.gap)
         out.append(cal)
     return out
+
+
+def power_for(ctx: GapContext, data: list[BlindData], cals: list[Calibration], effects_of: list[list[str]],
+              s: DiagnosisSettings, say=None) -> list[pd.DataFrame]:
+    """The power table of each data set for the effects ``effects_of[i]`` only, with the calibration ``cals[i]``
+    of its diagnosis (made with ``power_replicates`` 0 and otherwise the settings ``s``): the same simulated
+    data sets, screen and decision as :func:`calibrate` with the power, so equal to that table's rows of
+    these effects. (The withheld-effect benchmark needs the power of the injected effect only.)"""
+    cs = s.calibration
+    names = [d.name for d in data]
+    reg = {e.name: e for e in available_effects(ctx, s.effects)}
+    sim_base = Simulator(ctx, base_instance(ctx))
+    phis = {i: _truth_phis(sim_base, c.phi_fit, np.asarray(d.forces, float), c.sigma, cs, d.name, s.seed)
+            for i, (d, c) in enumerate(zip(data, cals))}
+    f_fit = np.array([c.f_fit for c in cals])
+    eff_of = [[reg[n] for n in ns] for ns in effects_of]
+    sims, meta = _power_sets(ctx, names, phis, f_fit, [c.sigma for c in cals], eff_of, cs, s.seed)
+    ok = [m for m in meta if m[1] != "skip"]
+    folds = np.array([direction_folds(ctx.K, s.folds, derive_rng(s.seed, f"gap/folds/{n}")) for n in names]
+                     ).reshape(len(names), ctx.K)
+    if say:
+        say(f"power: {len(sims)} simulated data sets with an effect for {len(names)} data set(s)")
+    gaps = screen(ctx, sims, folds[[m[0] for m in ok]], [reg[n] for n in cals[0].effects], s, say).gap if sims \
+        else np.zeros((0, len(cals[0].effects) + 1))
+    return [_power_table(c, i, eff_of[i], cs, meta, gaps) for i, c in enumerate(cals)]
 
 
 def power_summary(power: pd.DataFrame, target: float) -> pd.DataFrame:
     """Per effect: the smallest simulated size identified in >= ``target`` of its replicates, or none."""
     rows = []
+    if power.empty:
+        return pd.DataFrame(columns=["effect", "min_detectable_share", "at", "power_there", "sizes_covered",
+                                     "statement"])
     for e, g in power.groupby("effect", sort=False):
         ok = g[(g["replicates"] > 0) & (g["power"] >= target)]
         sizes = ", ".join(f"{u:g}" for u in g["size_share"])

@@ -72,6 +72,7 @@ class DatasetDiagnosis:
     power: pd.DataFrame = field(default_factory=pd.DataFrame)          # per effect and size (calibration)
     power_summary: pd.DataFrame = field(default_factory=pd.DataFrame)  # per effect: smallest detectable size
     discrimination: pd.DataFrame = field(default_factory=pd.DataFrame)  # proposed measurements (gap.discriminate)
+    calibration: object = None   # the data set's Calibration (null summaries, noise level, base fit), if calibrated
 
 
 
@@ -586,4 +587,4 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
         "penalty_per_param": s.penalty, "epsilon": s.epsilon,
     }
     return DatasetDiagnosis(dat.name, resid, planes, comps, muscles, eff_tab, pd.DataFrame(srows), summary, acts,
-                            pw, pws)
+                            pw, pws, calibration=cal)

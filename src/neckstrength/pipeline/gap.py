@@ -22,7 +22,7 @@ from neckstrength.config import (
     gap_withheld_activations,
     head_from_config,
 )
-from neckstrength.gap.benchmark import run_benchmark
+from neckstrength.gap.benchmark import decision_settings, run_benchmark
 from neckstrength.gap.diagnose import DiagnosisSettings
 from neckstrength.gap.report import markdown_table
 from neckstrength.gap.run import run_diagnosis
@@ -94,11 +94,9 @@ def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summar
     return df
 
 
-def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
-                        outputs: Mapping[str, str | Path]) -> dict[str, pd.DataFrame]:
-    """Withheld-effect benchmark; prints the confusion matrix (to the rule's log)."""
-    t0 = time.time()
-    directions = load_directions(directions_csv)
+def benchmark_setup(config: Mapping, model_name: str, directions: pd.DataFrame):
+    """The benchmark's context, generator settings, diagnosis settings (``gap.benchmark`` over ``gap``) and
+    generator stream, as the rule ``gap_benchmark`` uses them (also for ``benchmarks/bench_gap_benchmark.py``)."""
     ctx = gap_context(config, model_name, directions)
     b = config["gap"]["benchmark"]
     bs = benchmark_settings(config)
@@ -110,11 +108,22 @@ def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
                               "refine_iter": b.get("refine_iter", ds.refine_iter), "pairs_top": b.get("pairs_top",
                                                                                                       ds.pairs_top),
                               "reach_samples": 0, "reach_iter": 0, "calibration": cal})
-    rng = derive_rng(config["seed"], f"gap-benchmark/{model_name}")
-    store = ResultStore(Path(outputs["summary"]).parent / "resume", ctx, ds)
+    return ctx, bs, ds, derive_rng(config["seed"], f"gap-benchmark/{model_name}")
+
+
+def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
+                        outputs: Mapping[str, str | Path]) -> dict[str, pd.DataFrame]:
+    """Withheld-effect benchmark; prints the confusion matrix (to the rule's log)."""
+    t0 = time.time()
+    directions = load_directions(directions_csv)
+    ctx, bs, ds, rng = benchmark_setup(config, model_name, directions)
+    b = config["gap"]["benchmark"]
+    cal = ds.calibration
+    store = ResultStore(Path(outputs["summary"]).parent / "resume", ctx, decision_settings(ds))
+    power_store = ResultStore(Path(outputs["summary"]).parent / "resume", ctx, ds)
     cases, diags, tabs = run_benchmark(ctx, bs, ds, rng, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}",
                                                                                   flush=True),
-                                       store=store, chunk=b.get("chunk"))
+                                       store=store, chunk=b.get("chunk"), power_store=power_store)
     hdr = [f"withheld-effect benchmark ({model_name}): {len(cases)} cases ({bs.mismatch_replicates} per effect with "
            f"finer muscle control in the truth), noise {bs.noise_rel} (log-normal SD), strength spread "
            f"{bs.strength_spread}, effect size {bs.clear_size} of the way to the far bound",
@@ -138,6 +147,9 @@ def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
             if len(tabs["effect_size"]) else None,
             "false_alarm_rate": false_alarm if len(ctrl) else None, "controls": len(ctrl),
             "accuracy_detectable": acc_det if len(det) else None, "detectable_cases": len(det),
+            "effect_cases_wrong_effect_named": int(((pc["injected"] != "none") & (pc["identified"] != "none")
+                                                    & ~pc["correct"]).sum()),
+            "effect_cases": int((pc["injected"] != "none").sum()),
             "goal_accuracy_detectable": 0.8, "goal_false_alarm": 0.1,
             "goals_met": bool(len(det) and len(ctrl) and acc_det >= 0.8 and false_alarm <= 0.1),
             "seconds": time.time() - t0}
@@ -147,7 +159,9 @@ def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
             f"{1 / n_cand:.2f}); identified and injected share an effect in {summ['overlap_rate']:.2f} of cases.", "",
             "## Accuracy by detectability (goals: >= 0.80 on detectable cases, <= 0.10 false alarms)", "",
             f"False alarms on controls: {false_alarm:.2f} ({len(ctrl)} controls); correct on cases the power analysis "
-            f"calls detectable: {acc_det:.2f} ({len(det)} cases).", "", markdown_table(tabs["accuracy"]), "",
+            f"calls detectable: {acc_det:.2f} ({len(det)} cases); a wrong effect named in "
+            f"{summ['effect_cases_wrong_effect_named']} of {summ['effect_cases']} effect cases. Intervals: exact "
+            "(Clopper-Pearson) 95%.", "", markdown_table(tabs["accuracy"]), "",
             "## Per case", "", markdown_table(pc), "", "## Effect size", "",
             markdown_table(tabs["effect_size"]), ""]
     atomic_write_text("\n".join(text), outputs["report"])
@@ -157,6 +171,7 @@ def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
     print("\naccuracy by detectability:")
     print(tabs["accuracy"].to_string(index=False))
     print(f"\nfalse alarms on controls {false_alarm:.2f} (goal <= 0.10); correct on detectable cases {acc_det:.2f} "
-          f"(goal >= 0.80, {len(det)} cases); overall accuracy {acc:.2f} vs chance {1 / n_cand:.2f}; "
+          f"(goal >= 0.80, {len(det)} cases); a wrong effect named in {summ['effect_cases_wrong_effect_named']} of "
+          f"{summ['effect_cases']} effect cases; overall accuracy {acc:.2f} vs chance {1 / n_cand:.2f}; "
           f"{time.time() - t0:.0f} s")
     return tabs
