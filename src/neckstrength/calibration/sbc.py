@@ -198,7 +198,6 @@ def run_sbc(model: ReducedModel, directions: pd.DataFrame, f_ref: np.ndarray, se
     from neckstrength.wrench.batched import BasisCache
 
     rows: list[dict] = []
-    cache = BasisCache()
     for method in settings.methods:
         t0 = time.time()
         for i in range(first, first + settings.n_participants):
