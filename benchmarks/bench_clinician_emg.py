@@ -85,8 +85,10 @@ def main(argv=None) -> int:
     ll_truth = sum(float(post._test_loglik(wb[0, [x["i"]]], x["w_meas"])[0]) for x in post.tests)
     lp_truth = float(post.log_prior(fa[None])[0])
     lpost = post.log_prior(post.F) + post.loglik
-    print(f"2. after {len(post.tests)} tests (N {a.n}): P(deficit) {definition.probability(post.F, wts, f0, names):.3f}; "
-          f"truth: log prior {lp_truth:.1f}, kernel log-likelihood {ll_truth:.2f}, log posterior {lp_truth + ll_truth:.1f}; "
+    p_def = definition.probability(post.F, wts, f0, names)
+    print(f"2. after {len(post.tests)} tests (N {a.n}): P(deficit) {p_def:.3f}; "
+          f"truth: log prior {lp_truth:.1f}, kernel log-likelihood {ll_truth:.2f}, "
+          f"log posterior {lp_truth + ll_truth:.1f}; "
           f"best candidate log posterior {lpost.max():.1f}; candidates' mean log prior "
           f"{float(wts @ post.log_prior(post.F)):.1f}, mean log-likelihood {float(wts @ post.loglik):.2f}")
     E = wts @ post.F

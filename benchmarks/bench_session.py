@@ -106,8 +106,9 @@ def main(argv=None) -> int:
     ap.add_argument("--config", default="config/config.yaml")
     ap.add_argument("--json", default=None, help="also write the results here")
     ap.add_argument("--criterion", default="thesis", choices=["thesis", "joint_eig", "marginal_entropy"],
-                    help="thesis (default): Algorithms 7-9 with N_F of --n-candidates; joint_eig / marginal_entropy: "
-                         "the joint posterior with N of --n-candidates, or config clinician.session.<model> if not given")
+                    help="thesis (default): Algorithms 7-9 with N_F of --n-candidates; joint_eig / "
+                         "marginal_entropy: the joint posterior with N of --n-candidates, or config "
+                         "clinician.session.<model> if not given")
     ap.add_argument("--threads", type=int, default=0, help="the joint posterior's solver threads (0 = every core)")
     a = ap.parse_args(argv)
     spec = a.n_candidates if a.n_candidates is not None else (

@@ -16,7 +16,8 @@ marginal PDFs are convolved as that scheme treats them, independent.
 muscles from the prior) and normal ones (the group at ``normal_range``), measures them in the order each strategy
 picks (the joint expected information gain, random orders, the thesis's Eq. 6.7 on its own scheme, optionally the
 joint EIG with simulated EMG bounds of the recorded muscles, or choosing among further points on the head surface as
-well as the test directions), and records P(deficit) after every test on the joint posterior; :func:`detection_summary` gives the tests until P > ``p_alarm`` and the false-alarm rate.
+well as the test directions), and records P(deficit) after every test on the joint posterior;
+:func:`detection_summary` gives the tests until P > ``p_alarm`` and the false-alarm rate.
 """
 
 from __future__ import annotations
