@@ -24,7 +24,8 @@ import time
 from dataclasses import replace
 
 
-def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: bool, effects=None) -> dict:
+def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: bool, effects=None,
+        workers: int = 1) -> dict:
     from neckstrength.config import build_directions, diagnosis_settings, gap_blind_dataset, gap_context, load_config
     from neckstrength.gap.diagnose import diagnose
 
@@ -36,7 +37,7 @@ def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: boo
     data = gap_blind_dataset(cfg, ctx, directions, dataset)
     s = diagnosis_settings(cfg)
     out: dict = {"model": model, "dataset": dataset, "effects": list(s.effects), "platform": platform.platform(),
-                 "cpu_count": os.cpu_count()}
+                 "cpu_count": os.cpu_count(), "workers": workers}
     runs = [("exact_gradient", replace(s, calibration=replace(s.calibration, replicates=0)))]
     if reference:
         runs.append(("finite_differences", replace(s, calibration=replace(s.calibration, replicates=0),
@@ -45,17 +46,20 @@ def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: boo
         runs.append(("calibrated", s))
     for tag, st in runs:
         t0, c0, l0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
+        k0 = os.times().children_user + os.times().children_system
         stages = []
 
         def say(msg, t0=t0, stages=stages):
             stages.append((round(time.perf_counter() - t0, 1), msg))
             print(f"[{tag} {time.perf_counter() - t0:.0f} s] {msg}", flush=True)
 
-        d = diagnose(ctx, [data], st, progress=say)[0]
+        d = diagnose(ctx, [data], st, progress=say, workers=workers)[0]
         out[tag] = {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
+                    "cpu_workers_s": os.times().children_user + os.times().children_system - k0,
                     "load_before": l0, "load_after": os.getloadavg()[0], "decision": d.summary.get("decision"),
                     "gap_before": d.summary["gap_before"], "gap_after": d.summary["gap_after"], "stages": stages}
-        print(f"{tag}: {out[tag]['wall_s']:.0f} s wall, {out[tag]['cpu_s']:.0f} s CPU, load "
+        print(f"{tag}: {out[tag]['wall_s']:.0f} s wall, {out[tag]['cpu_s']:.0f} s CPU (+ "
+              f"{out[tag]['cpu_workers_s']:.0f} s in worker processes), load "
               f"{l0:.1f} -> {out[tag]['load_after']:.1f}: {d.summary.get('decision')}", flush=True)
     if reference:
         out["speedup_cpu"] = out["finite_differences"]["cpu_s"] / out["exact_gradient"]["cpu_s"]
@@ -72,9 +76,10 @@ def main() -> None:
     ap.add_argument("--no-calibration", action="store_true")
     ap.add_argument("--effects", default=None, help="comma-separated effects (default: config gap.effects)")
     ap.add_argument("--out", default=None, help="JSON file for the timings")
+    ap.add_argument("--workers", type=int, default=1, help="processes for the calibration's screen")
     a = ap.parse_args()
     res = run(a.config, a.model, a.dataset, a.reference, not a.no_calibration,
-              a.effects.split(",") if a.effects else None)
+              a.effects.split(",") if a.effects else None, a.workers)
     if a.out:
         with open(a.out, "w") as fh:
             json.dump(res, fh, indent=2)

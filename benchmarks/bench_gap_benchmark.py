@@ -73,6 +73,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--max-seconds", type=float, default=None, help="start no new batch after this long")
     ap.add_argument("--out", required=True, help="folder for the partial score tables")
     ap.add_argument("--score-only", action="store_true", help="diagnose nothing: score the cases already stored")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes, each diagnosing one batch at a time")
     a = ap.parse_args(argv)
 
     from neckstrength.config import build_directions, load_config
@@ -114,21 +115,39 @@ def main(argv=None) -> dict:
         say(f"score only: {len(keep)} of {len(cases)} cases stored")
         order = []
         summ = _score(ctx, cases, done, power, ds, out, cfg, model, t0, c0)
-    for a0 in range(0, len(order), a.chunk):
+    parts = [[cases[k] for k in order[a0:a0 + a.chunk]] for a0 in range(0, len(order), a.chunk)]
+
+    def stop() -> bool:
         if a.max_seconds is not None and time.perf_counter() - t0 > a.max_seconds:
-            say(f"stopping: --max-seconds {a.max_seconds:g} reached")
-            break
-        part = [cases[k] for k in order[a0:a0 + a.chunk]]
-        tb = time.process_time()
+            say(f"stopping: --max-seconds {a.max_seconds:g} reached (no new batch is started)")
+            return True
+        return False
+
+    def finish(i: int, tb: float | None = None) -> None:
+        nonlocal summ
+        part = parts[i]
         diags = diagnose(ctx, blind(part), decision_settings(ds), say, store=store, chunk=a.chunk)
         power.update(benchmark_power(ctx, part, diags, ds, say, store=power_store, chunk=a.chunk))
         for c, d in zip(part, diags):
             done[c.name] = d
         summ = _score(ctx, cases, done, power, ds, out, cfg, model, t0, c0)
-        say(f"batch {a0 // a.chunk + 1}: {', '.join(f'{c.name} {c.label}/{c.tier} -> ' + done[c.name].summary['chosen'] for c in part)} "
-            f"({time.process_time() - tb:.0f} s CPU); so far {summ['cases_done']} cases: false alarms "
-            f"{summ['false_alarms']}/{summ['controls']}, detectable correct {summ['detectable_correct']}/"
+        got = ", ".join(f"{c.name} {c.label}/{c.tier} -> " + done[c.name].summary["chosen"] for c in part)
+        say(f"batch {i + 1}: {got} " + (f"({time.process_time() - tb:.0f} s CPU)" if tb is not None else "(in a worker)")
+            + f"; so far {summ['cases_done']} cases: "
+            f"false alarms {summ['false_alarms']}/{summ['controls']}, detectable correct {summ['detectable_correct']}/"
             f"{summ['detectable_cases']}, effect cases correct {summ['effect_cases_correct']}/{summ['effect_cases']}")
+
+    if a.jobs > 1 and parts:
+        from neckstrength.gap.benchmark import diagnose_in_workers
+
+        diagnose_in_workers(ctx, parts, ds, store, power_store, a.jobs, say, on_done=finish, stop=stop)
+    else:
+        for i in range(len(parts)):
+            if stop():
+                break
+            finish(i, time.process_time())
+    say(f"done: {time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU in this process"
+        + (f" (plus the workers'; {a.jobs} worker processes)" if a.jobs > 1 else ""))
     return summ
 
 

@@ -16,6 +16,7 @@ Verbs:
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -288,7 +289,7 @@ def _cmd_diagnose(args) -> int:
         s = run_diagnosis(ctx, data, settings, directions,
                           gap_withheld_activations(cfg, ctx, args.dataset), outputs,
                           gap_settings_text(cfg, settings), model, discriminate_settings(cfg),
-                          head_from_config(cfg), cfg["geometry"]["plane_bands"])
+                          head_from_config(cfg), cfg["geometry"]["plane_bands"], max(1, args.workers))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -377,6 +378,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                         "(default: config gap.measurements / data.measurements)")
     d.add_argument("--effects", default=None, help="comma-separated effects (default: config gap.effects)")
     d.add_argument("--out", default=None, help="output folder (default results/gap/<model>/<dataset>)")
+    d.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="processes for the calibration's screen (default: every core; the answer does not "
+                        "depend on it)")
     d.set_defaults(func=_cmd_diagnose)
 
     def trial_options(a):

@@ -239,7 +239,8 @@ def calibration_settings(config: Mapping) -> CalibrationSettings:
                                power_replicates=int(c.get("power_replicates", 5)),
                                power_target=float(c.get("power_target", 0.8)),
                                strength_spread=float(c.get("strength_spread", 0.3)),
-                               starts=int(c.get("starts", 1)), max_iter=int(c.get("max_iter", 15)))
+                               starts=int(c.get("starts", 1)), max_iter=int(c.get("max_iter", 15)),
+                               cv=str(c.get("cv", "refit")), cv_steps=int(c.get("cv_steps", 1)))
 
 
 def benchmark_settings(config: Mapping) -> BenchmarkSettings:

@@ -147,14 +147,19 @@ def test_same_answer_alone_in_a_batch_and_in_any_order(ctx_p2):
     F = ctx_p2.model.strengths[None] * np.exp(rng.normal(0, 0.2, (3, ctx_p2.model.m)))
     T = sim.forces(F) * np.exp(rng.normal(0, 0.05, (3, ctx_p2.K)))
     data = [dg.BlindData(n, T[i]) for i, n in enumerate(("subject1", "lab-B_2", "S003"))]
-    s = dg.DiagnosisSettings(effects=("cocontraction",), grid_points=2, folds=4, pairs_top=0, bootstrap=50,
-                             starts=1, reach_samples=20, reach_iter=1, fit=FitSettings(max_iter=6), seed=5)
+    s = dg.DiagnosisSettings(effects=("cocontraction", "kinematic"), grid_points=2, folds=4, pairs_top=0,
+                             bootstrap=50, starts=1, reach_samples=20, reach_iter=1, fit=FitSettings(max_iter=6),
+                             seed=5)
     alone = dg.diagnose(ctx_p2, [data[1]], s)[0]
     batch = {d.name: d for d in dg.diagnose(ctx_p2, data, s)}
     rev = {d.name: d for d in dg.diagnose(ctx_p2, data[::-1], s)}
     for other in (batch["lab-B_2"], rev["lab-B_2"]):
         pd.testing.assert_frame_equal(alone.effects, other.effects)
         pd.testing.assert_frame_equal(alone.residuals, other.residuals)
+    # worker processes (the effects' grids shared out, `neckstrength diagnose --workers`): the same answer
+    two = dg.diagnose(ctx_p2, [data[1]], s, workers=2)[0]
+    pd.testing.assert_frame_equal(alone.effects, two.effects)
+    pd.testing.assert_frame_equal(alone.residuals, two.residuals)
     # different names, different fold splits (the split is not one shared draw)
     folds = [batch[n].residuals["fold"].to_numpy() for n in batch]
     assert any(not np.array_equal(folds[0], f) for f in folds[1:])

@@ -60,9 +60,9 @@ rule gap_diagnose:
             "gap.tie_sides", "geometry.head", "geometry.plane_bands", "model", "seed"),
     log:
         "logs/gap/{model}/{dataset}/diagnose.log",
-    threads: 1
+    threads: 2   # processes for the calibration's screen of the simulated data sets
     resources:
-        mem_mb=4500,   # peak 3.8 GB measured (s3m24, calibrated: 106 simulated data sets screened together)
+        mem_mb=7000,   # peak 4.7 GB main + 0.8 GB worker measured (s3m24, calibrated, 2 threads; S005)
         runtime=60,
     conda:
         "../envs/neckstrength.yaml"
@@ -147,9 +147,9 @@ rule gap_benchmark:
             "gap.tie_sides", "geometry.head.centre", "model", "seed"),
     log:
         "logs/gap/{model}/benchmark.log",
-    threads: 1
+    threads: 2   # worker processes, each diagnosing a batch of gap.benchmark.chunk cases
     resources:
-        mem_mb=4000,
+        mem_mb=8000,   # about 4 GB per worker with batches of 8 (s3m24)
         runtime=120,
     conda:
         "../envs/neckstrength.yaml"

@@ -9,4 +9,4 @@ install_job_record()  # run time and peak memory into the job's log (report)
 with open(snakemake.log[0], "w") as log:
     sys.stderr = sys.stdout = log
     gap_benchmark(rule_settings(snakemake), snakemake.wildcards.model, snakemake.input.directions,
-                        dict(snakemake.output.items()))
+                        dict(snakemake.output.items()), workers=snakemake.threads)

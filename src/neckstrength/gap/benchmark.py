@@ -286,16 +286,72 @@ def benchmark_power(ctx: GapContext, cases: Sequence[Case], diags: Sequence[Data
     return out
 
 
+def _benchmark_part(ctx: GapContext, part: Sequence[Case], ds: DiagnosisSettings, store, power_store, tag: str,
+                    verbose: bool) -> int:
+    """One batch of cases, diagnosed and its power simulated in a worker process; results go to the stores."""
+    import time
+
+    t0 = time.perf_counter()
+
+    def say(msg):
+        if verbose:
+            print(f"[{tag}, {time.perf_counter() - t0:.0f} s] {msg}", flush=True)
+
+    diags = diagnose(ctx, blind(part), decision_settings(ds), say, store=store)
+    benchmark_power(ctx, part, diags, ds, say, store=power_store)
+    return len(part)
+
+
+def diagnose_in_workers(ctx: GapContext, parts: Sequence[Sequence[Case]], ds: DiagnosisSettings, store, power_store,
+                        workers: int, progress=None, on_done=None, stop=None) -> int:
+    """Diagnose (and simulate the power of) batches of cases in ``workers`` processes; every result is written to
+    ``store`` / ``power_store`` as its batch finishes (the caller then reads them back: the same code path and the
+    same answers as one process, since a data set's diagnosis does not depend on what else is diagnosed with it).
+    Batches already stored are resumed by the workers themselves. ``on_done(i)`` is called in this process when
+    batch ``i`` is stored; ``stop()`` true: no further batch is started. Returns the number of batches done."""
+    import multiprocessing as mp
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    if store is None or power_store is None:
+        raise ValueError("diagnosing in worker processes needs the result stores (the workers write there)")
+    say = progress or (lambda msg: None)
+    todo = list(range(len(parts)))
+    running: dict = {}
+    n_done = 0
+    with ProcessPoolExecutor(max(1, int(workers)), mp_context=mp.get_context("fork")) as ex:
+        while todo or running:
+            while todo and len(running) < max(1, int(workers)) and not (stop and stop()):
+                i = todo.pop(0)
+                running[ex.submit(_benchmark_part, ctx, parts[i], ds, store, power_store,
+                                  f"batch {i + 1}/{len(parts)}", progress is not None)] = i
+            if not running:
+                break
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for f in finished:
+                i = running.pop(f)
+                f.result()
+                n_done += 1
+                say(f"benchmark: batch {i + 1} of {len(parts)} stored ({n_done} batches in this run)")
+                if on_done is not None:
+                    on_done(i)
+    return n_done
+
+
 def run_benchmark(ctx: GapContext, bs: BenchmarkSettings, ds: DiagnosisSettings, rng: np.random.Generator,
-                  progress=None, store=None, chunk: int | None = None, power_store=None):
+                  progress=None, store=None, chunk: int | None = None, power_store=None, workers: int = 1):
     """Generate, diagnose blind (``store``/``chunk``: see :func:`neckstrength.gap.diagnose.diagnose`), score.
 
     The diagnoses are made without their power tables (``power_replicates`` 0: the same decision, see
     :func:`neckstrength.gap.calibrate.calibrate`); the detectability of each case's injected effect comes from
-    :func:`benchmark_power` (stored in ``power_store``). Returns (cases, diagnoses, score tables)."""
+    :func:`benchmark_power` (stored in ``power_store``). ``workers`` > 1 (with both stores): batches of ``chunk``
+    cases in that many processes (:func:`diagnose_in_workers`). Returns (cases, diagnoses, score tables)."""
     cases = generate_cases(ctx, bs, rng)
     if progress:
         progress(f"benchmark: {len(cases)} cases generated (labels withheld from the diagnosis)")
+    if workers > 1 and store is not None and power_store is not None:
+        n = max(1, int(chunk)) if chunk else max(1, -(-len(cases) // workers))
+        diagnose_in_workers(ctx, [cases[a:a + n] for a in range(0, len(cases), n)], ds, store, power_store,
+                            workers, progress)
     diags = diagnose(ctx, blind(cases), decision_settings(ds), progress, store=store, chunk=chunk)
     power = benchmark_power(ctx, cases, diags, ds, progress, store=power_store, chunk=chunk)
     return cases, diags, score_benchmark(ctx, cases, diags, ds.epsilon, power)

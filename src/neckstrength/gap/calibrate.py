@@ -99,15 +99,35 @@ def screen_scores(ctx: GapContext, T: np.ndarray, preds: dict[str, np.ndarray], 
 
 
 def screen(ctx: GapContext, data: list[BlindData], folds: np.ndarray, effects: list[Effect],
-           s: DiagnosisSettings, say=None) -> Screen:
+           s: DiagnosisSettings, say=None, workers: int = 1) -> Screen:
     """Base model and every single effect on its grid, cross-validated on ``folds`` (data sets x K), all data
-    sets fitted alike (the diagnosis's start point, the calibration's ``starts`` and ``max_iter``)."""
+    sets fitted alike (the diagnosis's start point, the calibration's ``starts`` and ``max_iter``).
+    ``workers`` > 1: the data sets are split into that many groups, screened in parallel (one group in this
+    process, the others in forked worker processes); a data set's scores do not depend on its group."""
+    n = len(data)
+    workers = max(1, min(int(workers), n // 4))        # groups of at least 4 data sets
+    if workers > 1:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        cuts = np.linspace(0, n, workers + 1).round().astype(int)
+        groups = [slice(cuts[k], cuts[k + 1]) for k in range(workers)]
+        with ProcessPoolExecutor(workers - 1, mp_context=mp.get_context("fork")) as ex:
+            futs = [ex.submit(screen, ctx, data[g], folds[g], effects, s) for g in groups[1:]]
+            parts = [screen(ctx, data[groups[0]], folds[groups[0]], effects, s, say)] + [f.result() for f in futs]
+        return Screen([nm for p in parts for nm in p.names], parts[0].candidates,
+                      np.vstack([p.gap for p in parts]), np.vstack([p.structure for p in parts]),
+                      np.vstack([p.rms for p in parts]))
     cs = s.calibration
     s2 = DiagnosisSettings(**{**s.__dict__, "starts": cs.starts,
                               "fit": FitSettings(**{**s.fit.__dict__, "max_iter": cs.max_iter})})
-    eng = _Engine(ctx, data, s2, folds, {e.name: e for e in effects}, full=False)
-    eng.evaluate((), eng.prior)
-    keys = single_effect_grids(eng, effects, say, tag="  simulated data: ")
+    one = int(cs.cv_steps) if cs.cv == "one_step" else 0
+    eng = _Engine(ctx, data, s2, folds, {e.name: e for e in effects}, full=bool(one))
+    if one:
+        eng.evaluate_one_step((), eng.prior, one)
+    else:
+        eng.evaluate((), eng.prior)
+    keys = single_effect_grids(eng, effects, say, tag="  simulated data: ", one_step=one)
     preds = {c: cv_predictions(eng, k) for c, k in keys.items()}
     T = np.array([d.forces for d in data], float)
     return screen_scores(ctx, T, preds, s.epsilon, plane_indicators(ctx.directions), [d.name for d in data])
@@ -263,7 +283,7 @@ def _power_table(cal: Calibration, i: int, effects: list[Effect], cs: Calibratio
 
 def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarray, f_fit: np.ndarray,
               phi_fit: np.ndarray, rms_obs: np.ndarray, effects: list[Effect], s: DiagnosisSettings,
-              say=None) -> list[Calibration]:
+              say=None, workers: int = 1) -> list[Calibration]:
     """Null and power replicates for every data set (``names``, fold splits, measured forces ``T``, base fit
     forces ``f_fit`` and log strengths ``phi_fit``, held-out RMS log residuals per candidate ``rms_obs``).
     With ``power_replicates`` 0 there is no power table (the decision is the same: every data set is screened
@@ -297,7 +317,7 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
         + ", ".join(f"{n} {sg[0]:.3f} ({sg[1]})" for n, sg in zip(names, sig)))
     if sims:
         idx = [m[0] for m in meta_ok]
-        sc = screen(ctx, sims, folds[idx], effects, s, say)
+        sc = screen(ctx, sims, folds[idx], effects, s, say, workers)
     out = []
     for i, n in enumerate(names):
         rows = [j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "null"]
@@ -317,7 +337,7 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
 
 
 def power_for(ctx: GapContext, data: list[BlindData], cals: list[Calibration], effects_of: list[list[str]],
-              s: DiagnosisSettings, say=None) -> list[pd.DataFrame]:
+              s: DiagnosisSettings, say=None, workers: int = 1) -> list[pd.DataFrame]:
     """The power table of each data set for the effects ``effects_of[i]`` only, with the calibration ``cals[i]``
     of its diagnosis (made with ``power_replicates`` 0 and otherwise the settings ``s``): the same simulated
     data sets, screen and decision as :func:`calibrate` with the power, so equal to that table's rows of
@@ -336,7 +356,8 @@ def power_for(ctx: GapContext, data: list[BlindData], cals: list[Calibration], e
                      ).reshape(len(names), ctx.K)
     if say:
         say(f"power: {len(sims)} simulated data sets with an effect for {len(names)} data set(s)")
-    gaps = screen(ctx, sims, folds[[m[0] for m in ok]], [reg[n] for n in cals[0].effects], s, say).gap if sims \
+    eff = [reg[n] for n in cals[0].effects]
+    gaps = screen(ctx, sims, folds[[m[0] for m in ok]], eff, s, say, workers).gap if sims \
         else np.zeros((0, len(cals[0].effects) + 1))
     return [_power_table(c, i, eff_of[i], cs, meta, gaps) for i, c in enumerate(cals)]
 

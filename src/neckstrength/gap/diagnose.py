@@ -281,14 +281,15 @@ def _muscle_table(ctx: GapContext, alpha: np.ndarray, r_in, r_cv) -> pd.DataFram
 
 
 def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSettings = DiagnosisSettings(),
-             progress=None, store=None, chunk: int | None = None) -> list[DatasetDiagnosis]:
+             progress=None, store=None, chunk: int | None = None, workers: int = 1) -> list[DatasetDiagnosis]:
     """Diagnose each data set in ``data`` (forces only) with the model of ``ctx``; see the module docstring.
 
     Every random draw of a data set (its fold split, start perturbations, bootstrap, reach samples, simulated
     replicates) derives from ``settings.seed`` and the data set's name, so a data set gets the same answer alone
     or in a batch, in any order, by any path. ``store`` (:class:`neckstrength.gap.store.ResultStore`): results
     found there are reused, new ones written as each batch of ``chunk`` data sets (default: all) finishes, so
-    an interrupted run resumes.
+    an interrupted run resumes. ``workers``: processes that fit the effects' grids and screen the calibration's
+    simulated data sets (the answers do not depend on it).
     """
     say = progress or (lambda msg: None)
     names = [d.name for d in data]
@@ -306,7 +307,7 @@ def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSett
             part = todo[a:a + n]
             if len(todo) > n:
                 say(f"batch {a // n + 1} of {(len(todo) + n - 1) // n}: {', '.join(d.name for d in part)}")
-            for d, res in zip(part, _diagnose_batch(ctx, part, settings, say)):
+            for d, res in zip(part, _diagnose_batch(ctx, part, settings, say, workers)):
                 done[d.name] = res
                 if store is not None:
                     store.put(d, res)
@@ -314,7 +315,7 @@ def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSett
 
 
 def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSettings,
-                    say) -> list[DatasetDiagnosis]:
+                    say, workers: int = 1) -> list[DatasetDiagnosis]:
     s = settings
     K = ctx.K
     names = [d.name for d in data]
@@ -328,7 +329,7 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
     eng.evaluate((), eng.prior)
     say(f"base model fitted ({eng.n_fits} fits so far)")
     # ---- single effects on their grids
-    cand_keys = single_effect_grids(eng, effects, say)
+    cand_keys = single_effect_grids(eng, effects, say, workers=workers)
     cand_params: dict[str, int] = {"none": 0, **{e.name: e.n_params for e in effects}}
     cand_datasets: dict[str, set[int]] = {c: set(range(eng.nd)) for c in cand_keys}
     per_problem = {c: [list(keys) for _ in range(eng.P)] for c, keys in cand_keys.items()}
@@ -355,7 +356,7 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
         rms = np.column_stack([np.sqrt(np.mean(np.log(np.maximum(np.array(cv_pred[c]), 1e-12) / Tm) ** 2, axis=1))
                                for c in single_cands])
         cal = calibrate(ctx, names, folds, Tm, eng.results[()]["forces"][pf], eng.results[()]["phi"][pf], rms,
-                        effects, s, say)
+                        effects, s, say, workers)
         say(f"calibration done ({s.calibration.replicates} noise-only replicates per data set)")
 
     def cv_score(c, i):

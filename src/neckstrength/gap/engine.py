@@ -51,6 +51,8 @@ class CalibrationSettings:
     starts: int = 1
     max_iter: int = 15
     sd_floor: float = 1e-3
+    cv: str = "refit"
+    cv_steps: int = 1
 
 
 @dataclass(frozen=True)
@@ -123,6 +125,7 @@ class _Engine:
         self.p = self.prior.shape[1]
         self.results: dict[tuple, dict] = {}
         self.n_fits = 0
+        self._last_sim: tuple | None = None      # the simulator (and basis cache) of the last key used
 
     def key(self, pairs) -> tuple:
         return _key(pairs, self.registry)
@@ -131,15 +134,22 @@ class _Engine:
         effs = [self.registry[n] for n, _ in key]
         return effs, [np.array(th) for _, th in key]
 
-    def sim(self, key: tuple) -> Simulator:
+    def sim(self, key: tuple, keep: bool = False) -> Simulator:
         """A simulator for ``key`` (the base one is kept; others are built per use and dropped, with
-        their basis caches)."""
+        their basis caches; ``keep``: reuse / keep the last one kept, for the fold steps of
+        :meth:`evaluate_one_step` after the all-direction fit)."""
         if key == ():
             return self.base_sim
+        if keep and self._last_sim is not None and self._last_sim[0] == key:
+            return self._last_sim[1]
         effs, ths = self.effects_of(key)
-        return Simulator(self.ctx, compose(self.ctx, effs, ths), None, self.s.fit.chunk_size)
+        sim = Simulator(self.ctx, compose(self.ctx, effs, ths), None, self.s.fit.chunk_size)
+        if keep:
+            self._last_sim = (key, sim)
+        return sim
 
-    def evaluate(self, key: tuple, warm: np.ndarray, mask: np.ndarray | None = None, starts: int | None = None) -> dict:
+    def evaluate(self, key: tuple, warm: np.ndarray, mask: np.ndarray | None = None, starts: int | None = None,
+                 keep: bool = False) -> dict:
         """Fit the problems in ``mask`` for ``key`` with ``starts`` starts (warm start + perturbations; the
         perturbations of a problem derive from the seed, the key, its data set's name and fold, so they do not
         depend on which other problems are fitted with it)."""
@@ -164,7 +174,7 @@ class _Engine:
                 pert[a * S + 1:(a + 1) * S] = rng.normal(0.0, self.s.start_spread, (S - 1, self.p))
         phi0 = phi0 + pert
         rep = lambda a: np.repeat(a[idx], S, axis=0)  # noqa: E731
-        sim = self.sim(key)
+        sim = self.sim(key, keep)
         sim.refresh(sim.muscles(phi0))       # candidate wrenches that are maximal at the start points
         grad = sim.forces_grad_phi if self.s.fit.exact_gradient else None
         res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), phi0, rep(self.prior), self.s.fit, grad)
@@ -188,11 +198,136 @@ class _Engine:
         old["done"][idx] = True
         return old
 
+    def evaluate_one_step(self, key: tuple, warm: np.ndarray, steps: int = 1) -> dict:
+        """Approximate cross-validation: fit the all-direction problem of every data set for ``key`` (warm
+        start ``warm``), then each fold's problem by ``steps`` guarded Gauss-Newton steps on the fold's own
+        training loss from that fit (forward-difference Jacobian, see below). A step's trials (full step, half step, a damped step)
+        are evaluated with the exact LP and the one with the lowest training loss is kept, the all-direction
+        fit itself included, so a fold's training loss never rises above its value there. Needs the engine
+        with ``full=True``."""
+        full = self.pfold == -1
+        if not full.any():
+            raise ValueError("evaluate_one_step needs the all-direction problems (engine with full=True)")
+        res = self.evaluate(key, warm, mask=full, keep=True)
+        fold_idx = np.nonzero(~full & ~res["done"])[0]
+        if fold_idx.size == 0:
+            return res
+        # the all-direction fit of each fold problem's data set
+        full_of = np.full(self.nd, -1)
+        full_of[self.pds[full]] = np.nonzero(full)[0]
+        src = full_of[self.pds[fold_idx]]
+        sim = self.sim(key, keep=True)
+        sim.refresh(sim.muscles(res["phi"][src]))
+        T, W, prior = self.T[fold_idx], self.W[fold_idx], self.prior[fold_idx]
+        lo = prior + np.log(self.s.fit.bounds_rel[0])
+        hi = prior + np.log(self.s.fit.bounds_rel[1])
+        ridge = self.s.fit.ridge
+        phi = np.clip(res["phi"][src], lo, hi)
+        A, p = phi.shape
+        eye = np.eye(p)
+        F = loss = sse = None
+        h = self.s.fit.fd_step
+        for _ in range(max(1, int(steps))):
+            # forward differences, not the envelope gradient: the all-direction fit tends to end on a kink of
+            # the piecewise-linear forces, where the envelope gradient depends on which optimal vertex the
+            # solver returns (and so on what else is in the batch); a difference quotient over fd_step is a
+            # continuous function of the point. The folds of a data set share their start: one set of LPs each.
+            _, first, inv = np.unique(phi, axis=0, return_index=True, return_inverse=True)
+            U = phi[first]
+            sign = np.where(U + h > hi[first], -1.0, 1.0)                          # (u, p)
+            Ph = np.concatenate([U[:, None, :], U[:, None, :] + h * sign[:, None, :] * eye[None]], axis=1)
+            Fh = sim.forces_phi(Ph.reshape(-1, p)).reshape(len(U), p + 1, -1)
+            F0 = Fh[:, 0]
+            G = ((Fh[:, 1:] - F0[:, None, :]) / (h * sign[:, :, None])).transpose(0, 2, 1)   # (u, K, p)
+            F0, G = F0[inv.ravel()], G[inv.ravel()]
+            if F is None:
+                F = F0
+                loss, sse = _train_loss(F, T, W, phi, prior, ridge)
+            Jr = G / T[:, :, None]                                  # (A, K, p) relative Jacobian
+            r = F0 / T - 1.0
+            Jw = Jr * W[:, :, None]
+            H = np.einsum("akp,akq->apq", Jw, Jr) + ridge * eye[None]
+            g = np.einsum("akp,ak->ap", Jw, r) + ridge * (phi - prior)
+            dg = np.einsum("app->ap", H)
+            trials = []
+            for mu in (0.0, 1.0):
+                Hm = H + mu * dg[:, :, None] * eye[None] + 1e-9 * eye[None]
+                d = -np.linalg.solve(Hm, g[..., None])[..., 0]
+                trials.append(d)
+                if mu == 0.0:
+                    trials.append(0.5 * d)
+            trial = np.clip(phi[:, None, :] + np.stack(trials, axis=1), lo[:, None], hi[:, None])   # (A, 3, p)
+            nt = trial.shape[1]
+            Ft = sim.forces_phi(trial.reshape(-1, p)).reshape(A, nt, -1)
+            lt, st = _train_loss(Ft.reshape(A * nt, -1), np.repeat(T, nt, 0), np.repeat(W, nt, 0),
+                                 trial.reshape(A * nt, p), np.repeat(prior, nt, 0), ridge)
+            lt, st = lt.reshape(A, nt), st.reshape(A, nt)
+            b = lt.argmin(axis=1)
+            better = lt[np.arange(A), b] < loss
+            phi = np.where(better[:, None], trial[np.arange(A), b], phi)
+            F = np.where(better[:, None], Ft[np.arange(A), b], F)
+            loss = np.where(better, lt[np.arange(A), b], loss)
+            sse = np.where(better, st[np.arange(A), b], sse)
+        if sim.inst.J > 1:
+            F = sim.run(sim.muscles(phi))[0]
+            loss, sse = _train_loss(F, T, W, phi, prior, ridge)
+        res["phi"][fold_idx] = phi
+        res["loss"][fold_idx] = loss
+        res["sse"][fold_idx] = sse
+        res["forces"][fold_idx] = F
+        res["done"][fold_idx] = True
+        return res
 
-def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: str = "") -> dict[str, list[tuple]]:
+
+#: The engine and effects a forked worker of :func:`single_effect_grids` inherits (set just before forking, so that
+#: nothing with solver state has to be pickled).
+_FORKED: dict = {}
+
+
+def _grids_in_worker(names: list[str], one_step: int):
+    """:func:`single_effect_grids` for the effects ``names`` in a forked process; returns their keys, the new
+    results and the number of fits."""
+    eng, effects = _FORKED["eng"], _FORKED["effects"]
+    before = set(eng.results)
+    n0 = eng.n_fits
+    keys = single_effect_grids(eng, [e for e in effects if e.name in names], one_step=one_step)
+    return keys, {k: v for k, v in eng.results.items() if k not in before}, eng.n_fits - n0
+
+
+def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: str = "",
+                        one_step: int = 0, workers: int = 1) -> dict[str, list[tuple]]:
     """Fit every problem at every grid point of every effect (each grid point warm-started from the fits at
-    the nearest point already done); returns the keys per candidate ('none' and each effect)."""
+    the nearest point already done); returns the keys per candidate ('none' and each effect). ``one_step``
+    > 0: the folds by :meth:`_Engine.evaluate_one_step` with that many steps. ``workers`` > 1: the effects are
+    shared out over that many processes (this one and forked workers); each effect's fits depend only on the base
+    model's and its own, so the results are the same."""
     say = say or (lambda msg: None)
+    workers = max(1, min(int(workers), len(effects)))
+    if workers > 1:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        cost = {e.name: len(e.grid(eng.s.grid_points)) * (1 + e.name.startswith("direction")) for e in effects}
+        groups: list[list[str]] = [[] for _ in range(workers)]
+        load = [0.0] * workers
+        for e in sorted(effects, key=lambda e: -cost[e.name]):      # largest first, to the least loaded group
+            k = int(np.argmin(load))
+            groups[k].append(e.name)
+            load[k] += cost[e.name]
+        _FORKED.update(eng=eng, effects=list(effects))
+        try:
+            with ProcessPoolExecutor(workers - 1, mp_context=mp.get_context("fork")) as ex:
+                futs = [ex.submit(_grids_in_worker, g, one_step) for g in groups[1:]]
+                mine = single_effect_grids(eng, [e for e in effects if e.name in groups[0]], say, tag, one_step)
+                for f, g in zip(futs, groups[1:]):
+                    keys, new, nf = f.result()
+                    mine.update(keys)
+                    eng.results.update(new)
+                    eng.n_fits += nf
+                    say(f"{tag}effects {', '.join(g)} (in a worker process; {eng.n_fits} fits so far)")
+        finally:
+            _FORKED.clear()
+        return {"none": [()], **{e.name: mine[e.name] for e in effects}}
     cand_keys: dict[str, list[tuple]] = {"none": [()]}
     for e in effects:
         grid = e.grid(eng.s.grid_points)
@@ -201,7 +336,10 @@ def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: 
         for th in grid[1:]:
             near = min(done, key=lambda t: float(np.linalg.norm((t[0] - th) / span)))
             key = eng.key([(e.name, th)])
-            eng.evaluate(key, eng.results[near[1]]["phi"])
+            if one_step:
+                eng.evaluate_one_step(key, eng.results[near[1]]["phi"], one_step)
+            else:
+                eng.evaluate(key, eng.results[near[1]]["phi"])
             done.append((th, key))
         cand_keys[e.name] = [k for _, k in done]
         say(f"{tag}effect {e.name}: {len(grid)} grid points ({eng.n_fits} fits so far)")

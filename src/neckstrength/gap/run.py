@@ -31,8 +31,9 @@ FIGURES = ("radar", "where", "effects", "activation")
 def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings, directions: pd.DataFrame,
                   a3: np.ndarray | None, outputs: Mapping[str, str | Path],
                   settings_text: str, model_name: str, discriminate: DiscriminateSettings | None = None,
-                 head: HeadEllipsoid | None = None, plane_bands: Mapping | None = None) -> dict:
-    """Diagnose one data set and write every output (keys of ``outputs``); returns the summary.
+                 head: HeadEllipsoid | None = None, plane_bands: Mapping | None = None, workers: int = 1) -> dict:
+    """Diagnose one data set and write every output (keys of ``outputs``); returns the summary. ``workers``:
+    processes that screen the calibration's simulated data sets (the answer does not depend on it).
 
     With ``discriminate`` and ``head`` (the cranial ellipsoid of the geometry), the measurements that would
     best tell the leading candidates apart are proposed when they are close
@@ -43,7 +44,7 @@ def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings,
     print(f"gap diagnosis: model {model_name}, data set {dataset}, {ctx.K} directions, forces only", flush=True)
     store = ResultStore(Path(outputs["summary"]).parent / "resume", ctx, s)
     diag = diagnose(ctx, [data], s, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}", flush=True),
-                    store=store)[0]
+                    store=store, workers=workers)[0]
     if discriminate is not None and head is not None:
         t1 = time.time()
         attach_proposal(ctx, data.forces, diag, head, discriminate, plane_bands)

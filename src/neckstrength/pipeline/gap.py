@@ -32,15 +32,16 @@ from neckstrength.pipeline.common import load_directions
 
 
 def gap_diagnose(config: Mapping, model_name: str, dataset: str, directions_csv: str | Path | pd.DataFrame,
-                 outputs: Mapping[str, str | Path]) -> dict:
-    """Diagnose one data set: tables, figures, report.md and summary.json (keys of ``outputs``)."""
+                 outputs: Mapping[str, str | Path], workers: int = 1) -> dict:
+    """Diagnose one data set: tables, figures, report.md and summary.json (keys of ``outputs``); ``workers``:
+    processes for the calibration's screen (the rule's threads)."""
     directions = directions_csv if isinstance(directions_csv, pd.DataFrame) else load_directions(directions_csv)
     ctx = gap_context(config, model_name, directions)
     data = gap_blind_dataset(config, ctx, directions, dataset)
     s = diagnosis_settings(config)
     return run_diagnosis(ctx, data, s, directions, gap_withheld_activations(config, ctx, dataset), outputs,
                          gap_settings_text(config, s), model_name, discriminate_settings(config),
-                         head_from_config(config), config["geometry"]["plane_bands"])
+                         head_from_config(config), config["geometry"]["plane_bands"], workers)
 
 
 def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summaries: Sequence[str],
@@ -112,8 +113,9 @@ def benchmark_setup(config: Mapping, model_name: str, directions: pd.DataFrame):
 
 
 def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
-                        outputs: Mapping[str, str | Path]) -> dict[str, pd.DataFrame]:
-    """Withheld-effect benchmark; prints the confusion matrix (to the rule's log)."""
+                        outputs: Mapping[str, str | Path], workers: int = 1) -> dict[str, pd.DataFrame]:
+    """Withheld-effect benchmark; prints the confusion matrix (to the rule's log). ``workers``: processes (the
+    rule's threads) that diagnose batches of cases in parallel."""
     t0 = time.time()
     directions = load_directions(directions_csv)
     ctx, bs, ds, rng = benchmark_setup(config, model_name, directions)
@@ -123,7 +125,8 @@ def gap_benchmark(config: Mapping, model_name: str, directions_csv: str | Path,
     power_store = ResultStore(Path(outputs["summary"]).parent / "resume", ctx, ds)
     cases, diags, tabs = run_benchmark(ctx, bs, ds, rng, progress=lambda m: print(f"[{time.time() - t0:.0f} s] {m}",
                                                                                   flush=True),
-                                       store=store, chunk=b.get("chunk"), power_store=power_store)
+                                       store=store, chunk=b.get("chunk"), power_store=power_store,
+                                       workers=workers)
     hdr = [f"withheld-effect benchmark ({model_name}): {len(cases)} cases ({bs.mismatch_replicates} per effect with "
            f"finer muscle control in the truth), noise {bs.noise_rel} (log-normal SD), strength spread "
            f"{bs.strength_spread}, effect size {bs.clear_size} of the way to the far bound",
