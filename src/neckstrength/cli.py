@@ -378,9 +378,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                         "(default: config gap.measurements / data.measurements)")
     d.add_argument("--effects", default=None, help="comma-separated effects (default: config gap.effects)")
     d.add_argument("--out", default=None, help="output folder (default results/gap/<model>/<dataset>)")
-    d.add_argument("--workers", type=int, default=os.cpu_count() or 1,
-                   help="processes for the calibration's screen (default: every core; the answer does not "
-                        "depend on it)")
+    d.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="processes for the effects' grids and the calibration's screen (default 2, as the "
+                        "pipeline rule; each may need about 1 GB more; the answer does not depend on it)")
     d.set_defaults(func=_cmd_diagnose)
 
     def trial_options(a):

@@ -62,7 +62,7 @@ rule gap_diagnose:
         "logs/gap/{model}/{dataset}/diagnose.log",
     threads: 2   # processes for the calibration's screen of the simulated data sets
     resources:
-        mem_mb=7000,   # peak 4.7 GB main + 0.8 GB worker measured (s3m24, calibrated, 2 threads; S005)
+        mem_mb=7000,   # peak 4.7 GB main + 0.9 GB worker measured (s3m24, calibrated, 2 threads; S005)
         runtime=60,
     conda:
         "../envs/neckstrength.yaml"
