@@ -7,7 +7,10 @@ residuals of the best single candidate (the candidate with the smallest one; bas
 number given by the user (e.g. from repeat trials). The measured data set and its simulated ones are *screened*
 alike, in one batch: the base model and every single effect on its grid, fitted from the same start point with
 the calibration's ``starts`` and ``max_iter`` on the data set's fold split, each fold choosing its grid point by
-training loss, scored by the held-out gap ``1 - D_cv``. The decision uses the measured data set's screen scores,
+training loss, scored by the held-out gap ``1 - D_cv``. With ``cv`` 'one_step' (the config's default) the folds are
+not refitted: each takes guarded Gauss-Newton step(s) from the data set's all-direction fit
+(:meth:`neckstrength.gap.engine._Engine.evaluate_one_step`; approximate CV, valid here because the null and the
+power data sets are screened the same way). The decision uses the measured data set's screen scores,
 so that its statistic and the null's come from the same procedure (fitting the simulated data from their truth,
 or with other settings than the data, would make the test anti-conservative: an effect would "improve" the
 data merely by reaching a better optimum). The full diagnosis (more starts, pairs, refinement) gives the
