@@ -56,8 +56,6 @@ class FitSettings:
     lambda0: float = 1e-2
     chunk_size: int = 65536
     exact_gradient: bool = True
-    damping: tuple[float, ...] = (0.1, 1.0, 10.0)
-    stall: int = 3
 
 
 def make_cache(max_bases: int = 512):
@@ -272,7 +270,7 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
     active = np.ones(P, bool)
     sw = np.sqrt(W)
     eye = np.eye(p)
-    mults = np.array(s.damping, float)
+    mults = np.array([0.1, 1.0, 10.0])
     for _ in range(s.max_iter):
         idx = np.nonzero(active)[0]
         if len(idx) == 0:
@@ -321,6 +319,6 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
             else:
                 mu[i] *= 100.0
                 stall[i] += 1
-            if stall[i] >= s.stall or mu[i] > 1e8:
+            if stall[i] >= 3 or mu[i] > 1e8:
                 active[i] = False
     return FitResult(phi, loss, sse, F, iters)
