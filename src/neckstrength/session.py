@@ -761,7 +761,9 @@ class Session:
                 for d, v in zip(t["direction"], t["score"]):
                     if self.split(d)[0] != now:
                         marks[d] = (marks.get(d, "") + f" (gain {v + cost:.3f} - {cost:g} posture change)").strip()
-            order = t.sort_values("score", ascending=False, kind="stable")
+            # ties (e.g. mirror-image directions) in the direction order: the scores' last bits depend on which
+            # optimal LP vertex the solver's cache history returns, so a resumed session could swap them otherwise
+            order = t.assign(_key=t["score"].round(9)).sort_values("_key", ascending=False, kind="stable")
             lines.append(bar_chart(list(order["direction"]), list(order["score"]), mark=prop, marks=marks))
         e = self.estimate()
         lines.append("Current estimate (posterior mean ± sd, N; prior in brackets). The sd assumes the model fits every "

@@ -119,8 +119,10 @@ TOP_MIN = 8
 
 
 #: Dual simplex (:mod:`neckstrength.wrench.simplex`) on the rows no cached basis fits: at most
-#: this many pivots per row before the row goes to HiGHS.
+#: this many pivots per row before the row goes to HiGHS, or ``SIMPLEX_ITER_PER_COLUMN`` per muscle
+#: column if that is more (models with many columns need more pivots from a far basis). 0: no simplex.
 SIMPLEX_MAX_ITER = 60
+SIMPLEX_ITER_PER_COLUMN = 4
 
 
 #: With the dual simplex on, stage 1 ranks by at most this many most-hit bases (a warm start from
@@ -132,6 +134,11 @@ SIMPLEX_TOP_MAX = 96
 #: checks run only while at most this many bases are cached (they resolve the ties of structured
 #: candidates such as the 3-point grid for less than a simplex solve costs).
 SIMPLEX_STAGE2_MAX = 256
+
+
+#: ... and only for blocks of more than this many rows: in a small block (a fit's iteration: a few
+#: problems per direction) their Python overhead per call exceeds the simplex solves they save.
+SIMPLEX_STAGE2_MIN_ROWS = 0
 
 
 #: The simplex rows of a block are solved in (at least 8) parts of at least this many rows.
@@ -240,6 +247,8 @@ class DirectionStats:
     simplex_pivots: int = 0  # pivots of the certified dual simplex solves
     learned_bases: int = 0   # bases the dual simplex found that were added to the cache
     bootstrap_calls: int = 0  # HiGHS calls (in highs_calls) that only found a first basis for the simplex
+    start_bases: int = 0     # first rows solved by the simplex from the slack basis instead of HiGHS
+    simplex_farkas: int = 0  # infeasible rows proven by a certificate from the simplex's final basis (in farkas_hits)
 
 
 class DirectionSolver:
@@ -351,6 +360,48 @@ class DirectionSolver:
         col[np.abs(xv - hi) < np.abs(xv - lo)] = _UPPER
         col[bcols] = _BASIC
         return self._make_basis(bcols, brows, col, f)
+
+    def _bootstrap_simplex(self, F, w, status, alpha, src, open_) -> bool:
+        """Answer row 0 of ``F`` with the compiled simplex from the slack basis and cache its optimal
+        basis (the slack basis itself is dropped again). False if that did not give a basis."""
+        sb = self._start_basis(F[0])
+        if sb is None:
+            return False
+        # from the slack basis every row logical but one has to leave: allow more pivots than a warm start
+        # (none when SIMPLEX_MAX_ITER is 0, which switches the simplex off in tests)
+        failed, _ = self._simplex_rows(F, np.array([0], dtype=np.int64), np.array([0], dtype=np.int64), [sb], w,
+                                       status, alpha, src, open_,
+                                       max_iter=self._max_iter() and self._max_iter() + 20 * (self.n + 1))
+        if len(self.bases) > 1 or failed.size:
+            self.bases.remove(sb)
+            self._keys.pop(sb.key, None)
+            self._D = None
+            self._packed = None
+            self.stats.bases = len(self.bases)
+        if failed.size == 0:
+            self.stats.start_bases += 1
+        return bool(self.bases)
+
+    def _start_basis(self, f: np.ndarray):
+        """A dual feasible basis without HiGHS, for the dual simplex to start from: ``w`` basic in the
+        row ``r0`` of the largest ``|b|``, the other rows' logicals basic. Its duals are ``y = -e_r0 /
+        b_r0``, so the reduced cost of muscle force ``j`` is ``R_r0j / b_r0`` whatever ``f``: each
+        nonbasic force sits at the bound that sign asks for (upper if positive). Cached like any other
+        basis (:meth:`_make_basis` verifies it; it is rarely optimal itself, but the simplex starts
+        from it). Returns the basis or None (then HiGHS bootstraps as before)."""
+        n, m = self.n, self.m
+        if n == 0 or self.unbounded:
+            return None
+        r0 = int(np.argmax(np.abs(self.b)))
+        d = self.A[r0, :m] / self.b[r0]
+        col = np.where(d > 0, _UPPER, _LOWER).astype(np.int64)
+        col = np.r_[col, _BASIC]
+        brows = np.array([i for i in range(n) if i != r0], dtype=np.int64)
+        try:
+            bb = self._make_basis(np.array([m], dtype=np.int64), brows, col, np.asarray(f, float))
+        except Exception:  # noqa: BLE001 - an optimisation; HiGHS bootstraps instead
+            bb = None
+        return bb
 
     def _make_basis(self, bcols: np.ndarray, brows: np.ndarray, col: np.ndarray, f: np.ndarray):
         """Verify a basis (sorted basic columns and row logicals, per-column bound status ``col``)
@@ -521,10 +572,14 @@ class DirectionSolver:
             self._packed = (SB, SS, SBinv)
         return self._packed
 
-    def _simplex_rows(self, F, rows, start, used, w, status, alpha, src, open_):
+    def _max_iter(self) -> int:
+        """Pivots per simplex row (module constants read at call time, so tests can switch them)."""
+        return SIMPLEX_MAX_ITER and max(SIMPLEX_MAX_ITER, SIMPLEX_ITER_PER_COLUMN * self.m)
+
+    def _simplex_rows(self, F, rows, start, used, w, status, alpha, src, open_, max_iter: int | None = None):
         """Compiled dual simplex for ``rows`` warm-started from ``used[start]``; certified rows are
         answered (``src = -3``) and their new bases learned. Returns the rows left for HiGHS and
-        the newly cached bases."""
+        the newly cached bases. ``max_iter``: pivots per row (default ``SIMPLEX_MAX_ITER``)."""
         n, m = self.n, self.m
         R = rows.size
         SB, SS, SBinv = self._packed_bases(used)
@@ -536,10 +591,33 @@ class DirectionSolver:
         out_alpha = np.empty((R if want else 1, m))
         out_piv = np.empty(R, dtype=np.int64)
         _simplex.solve_rows(self.A, self.lb, self.ub, self._Acol1, self._wscale, self._Rscale, self._absb, F,
-                            rows.astype(np.int64), start.astype(np.int64), SB, SS, SBinv, SIMPLEX_MAX_ITER, PRIMAL_TOL,
+                            rows.astype(np.int64), start.astype(np.int64), SB, SS, SBinv,
+                            self._max_iter() if max_iter is None else int(max_iter), PRIMAL_TOL,
                             DUAL_TOL, GAP_REL, MAX_COND, want, out_w, out_code, out_basic, out_status,
                             out_alpha if want else np.empty((R, m)), out_piv)
         cert = out_code == _simplex.CERTIFIED
+        sus = np.flatnonzero(out_code == _simplex.INFEASIBLE_SUSPECT)
+        if sus.size:
+            # the ratio test found no entering variable: a row of the final basis inverse is a Farkas ray
+            # candidate; a row is answered only where a certificate (cached, or one of these verified by
+            # _add_farkas) proves it infeasible, the others go on to HiGHS as before
+            inf = self._prove_infeasible(F, rows[sus], out_basic[sus])
+            g = rows[sus[inf]]
+            if g.size:
+                status[g] = _INF
+                src[g] = -2
+                open_[g] = False
+                if want:
+                    alpha[g] = np.nan
+                self.stats.farkas_hits += int(g.size)
+                self.stats.simplex_farkas += int(g.size)
+                cert = cert.copy()
+                done_inf = np.zeros(R, bool)
+                done_inf[sus[inf]] = True
+            else:
+                done_inf = None
+        else:
+            done_inf = None
         g = rows[cert]
         w[g] = out_w[cert]
         status[g] = _OPT
@@ -552,7 +630,38 @@ class DirectionSolver:
         self.stats.simplex_failed += R - nc
         self.stats.simplex_pivots += int(out_piv[cert].sum())
         new = self._learn(out_basic[cert], out_status[cert], F[g]) if nc else []
-        return rows[~cert], new
+        left = ~cert if done_inf is None else ~cert & ~done_inf
+        return rows[left], new
+
+    def _prove_infeasible(self, F: np.ndarray, rows: np.ndarray, basic: np.ndarray) -> np.ndarray:
+        """Which of ``rows`` a Farkas certificate proves infeasible: the cached ones first, then the rows of
+        the inverse of each row's final simplex basis (``basic``), each verified and cached by
+        :meth:`_add_farkas` (the test is exact: ``f @ c < 0`` with its margin)."""
+        n, m = self.n, self.m
+        out = np.zeros(rows.size, bool)
+        for t, i in enumerate(rows):
+            f = F[i]
+            if any(float(f @ cm) < 0 for cm in self.farkas):
+                out[t] = True
+                continue
+            B = np.zeros((n, n))
+            for k, j in enumerate(basic[t]):
+                if j <= m:
+                    B[:, k] = self.A[:, j]
+                else:
+                    B[j - m - 1, k] = -1.0
+            try:
+                Binv = np.linalg.inv(B)
+            except np.linalg.LinAlgError:
+                continue
+            for r in range(n):
+                if not np.all(np.isfinite(Binv[r])):
+                    continue
+                cm = self._add_farkas((None, True, Binv[r]), f)
+                if cm is not None and float(f @ cm) < 0:
+                    out[t] = True
+                    break
+        return out
 
     def _learn(self, basic: np.ndarray, stat: np.ndarray, F: np.ndarray) -> None:
         """Cache the most frequent new bases among the simplex's certified final bases; returns them."""
@@ -677,13 +786,15 @@ class DirectionSolver:
         floor = ZERO_REL * max(1.0, fmax * m)     # >= the 'zero' threshold of every row
         simplex = self.simplex
         if simplex and not self.bases:
-            # bootstrap: the dual simplex needs one dual feasible basis; HiGHS finds it (the rows
-            # themselves are answered below)
-            for i in range(min(N, 4)):
-                self.stats.bootstrap_calls += 1
-                self._highs(F[i])
-                if self.bases:
-                    break
+            # bootstrap: the dual simplex needs one dual feasible basis. The first row is solved by the
+            # simplex from the slack basis (:meth:`_start_basis`), whose optimal basis then serves the
+            # block; where that fails, HiGHS finds one (the rows themselves are answered below)
+            if not self._bootstrap_simplex(F, w, status, alpha, src, open_):
+                for i in range(min(N, 4)):
+                    self.stats.bootstrap_calls += 1
+                    self._highs(F[i])
+                    if self.bases:
+                        break
             used = list(self.bases)
 
         def infeasible(g: np.ndarray) -> None:
@@ -708,13 +819,13 @@ class DirectionSolver:
             return idx.size
 
         nb = len(used)
-        rem = np.arange(N)
+        rem = np.arange(N) if open_.all() else np.flatnonzero(open_)   # row 0 may be answered by the bootstrap
         if nb:
             D = self._dual_matrix()
             hits = np.cumsum([bb.hits for bb in used])
             k = int(np.searchsorted(hits, TOP_SHARE * hits[-1])) + 1
             k = min(nb, max(k, TOP_MIN))
-            stage2 = not simplex or nb <= SIMPLEX_STAGE2_MAX
+            stage2 = not simplex or (nb <= SIMPLEX_STAGE2_MAX and N > SIMPLEX_STAGE2_MIN_ROWS)
             if simplex:
                 k = min(k, SIMPLEX_TOP_MAX)
             label = np.full(N, -1, dtype=np.int16 if nb < 32768 else np.int64)
