@@ -189,3 +189,23 @@ def test_exact_gradient_matches_finite_differences(effect, ctx_s3):
     fd = np.stack([(sim.forces_phi(phi + h * np.eye(p)[q]) - f) / h for q in range(p)], axis=2)
     assert np.abs(g).max() > 1.0                                   # not trivially zero
     assert np.allclose(g, fd, rtol=1e-4, atol=1e-4 * f.max())
+
+
+def test_pairs_and_refinement_in_a_worker_while_calibrating_give_the_same_answer(ctx_p2):
+    # with workers, pairs and refinement run in a forked process during the calibration: same tables as serial
+    from neckstrength.gap.engine import CalibrationSettings
+
+    sim = Simulator(ctx_p2, base_instance(ctx_p2))
+    rng = np.random.default_rng(4)
+    F = ctx_p2.model.strengths[None] * np.exp(rng.normal(0, 0.2, (1, ctx_p2.model.m)))
+    T = sim.forces(F)[0] * np.exp(rng.normal(0, 0.05, ctx_p2.K))
+    s = dg.DiagnosisSettings(effects=("cocontraction", "kinematic", "origin_offset"), grid_points=3, folds=4,
+                             pairs_top=3, pair_grid_top=2, refine_iter=2, bootstrap=50, starts=1, reach_samples=0,
+                             reach_iter=0, fit=FitSettings(max_iter=6), seed=5,
+                             calibration=CalibrationSettings(replicates=4, power_replicates=0, max_iter=6))
+    one = dg.diagnose(ctx_p2, [dg.BlindData("p", T)], s)[0]
+    two = dg.diagnose(ctx_p2, [dg.BlindData("p", T)], s, workers=2)[0]
+    assert any("+" in c for c in one.effects["candidate"])            # pairs were fitted
+    pd.testing.assert_frame_equal(one.effects, two.effects)
+    pd.testing.assert_frame_equal(one.strengths, two.strengths)
+    assert one.summary["decision"] == two.summary["decision"]

@@ -347,17 +347,72 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
     for c in cand_keys:
         selections[c], cv_pred[c] = scores_for(c)
 
-    # ---- calibration: noise-only and effect replicates from each data set's fitted base model
+    # ---- pairs and refinement (they depend on the base and single-effect fits only) and the calibration
+    # (its own simulated data sets): with workers, pairs and refinement run in a forked process meanwhile
     cal = None
     single_cands = ["none"] + [e.name for e in effects]
-    if s.calibration.replicates > 0:
-        pf = [int(np.nonzero((eng.pds == i) & (eng.pfold < 0))[0][0]) for i in range(eng.nd)]
-        Tm = eng.T[pf]
-        rms = np.column_stack([np.sqrt(np.mean(np.log(np.maximum(np.array(cv_pred[c]), 1e-12) / Tm) ** 2, axis=1))
-                               for c in single_cands])
-        cal = calibrate(ctx, names, folds, Tm, eng.results[()]["forces"][pf], eng.results[()]["phi"][pf], rms,
-                        effects, s, say, workers)
-        say(f"calibration done ({s.calibration.replicates} noise-only replicates per data set)")
+    tail_args = (eng, cand_keys, per_problem, selections, cv_pred, cand_params, cand_datasets, say)
+    pool = None
+    if workers > 1 and s.calibration.replicates > 0:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        _TAIL.update(args=tail_args)
+        pool = ProcessPoolExecutor(1, mp_context=mp.get_context("fork"))
+        fut = pool.submit(_tail_in_worker)
+    try:
+        if s.calibration.replicates > 0:
+            pf = [int(np.nonzero((eng.pds == i) & (eng.pfold < 0))[0][0]) for i in range(eng.nd)]
+            Tm = eng.T[pf]
+            rms = np.column_stack([np.sqrt(np.mean(np.log(np.maximum(np.array(cv_pred[c]), 1e-12) / Tm) ** 2,
+                                                   axis=1)) for c in single_cands])
+            cal = calibrate(ctx, names, folds, Tm, eng.results[()]["forces"][pf], eng.results[()]["phi"][pf], rms,
+                            effects, s, say, workers)
+            say(f"calibration done ({s.calibration.replicates} noise-only replicates per data set)")
+        if pool is not None:
+            results, n_fits, parts, refined = fut.result()
+            eng.results = results
+            eng.n_fits = n_fits
+            for d_main, d_worker in zip((per_problem, selections, cv_pred, cand_params, cand_datasets), parts):
+                d_main.update(d_worker)
+            say(f"pairs and refinement (in a worker process; {eng.n_fits} fits so far)")
+        else:
+            refined = _pairs_and_refinement(*tail_args)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+            _TAIL.clear()
+    # ---- per data set results
+    out = []
+    for i, dat in enumerate(data):
+        out.append(_dataset_result(eng, i, dat, cand_datasets, cand_params, selections, refined, cv_pred,
+                                   None if cal is None else cal[i], single_cands))
+        sm = out[-1].summary
+        say(f"{dat.name}: {sm['decision']}; held-out gap {sm['gap_before']:.3f} -> {sm['gap_after']:.3f} (1 - D_cv)")
+    return out
+
+
+#: The arguments of :func:`_pairs_and_refinement` for a forked worker (the engine's solvers cannot be pickled).
+_TAIL: dict = {}
+
+
+def _tail_in_worker():
+    eng, cand_keys, per_problem, selections, cv_pred, cand_params, cand_datasets, say = _TAIL["args"]
+    refined = _pairs_and_refinement(eng, cand_keys, per_problem, selections, cv_pred, cand_params, cand_datasets,
+                                    say)
+    return eng.results, eng.n_fits, (per_problem, selections, cv_pred, cand_params, cand_datasets), refined
+
+
+def _pairs_and_refinement(eng: _Engine, cand_keys, per_problem, selections, cv_pred, cand_params, cand_datasets,
+                          say) -> dict[str, list[tuple]]:
+    """Pairs of the best single effects (per data set, different families) on the product of their best grid
+    points, then the pattern-search refinement of every candidate's all-direction fits; adds the pairs to the
+    dicts in place and returns the refined keys per candidate."""
+    s = eng.s
+
+    def scores_for(c):
+        chosen = _selection(eng, per_problem[c])
+        return chosen, [_cv_predictions(eng, chosen, i) for i in range(eng.nd)]
 
     def cv_score(c, i):
         d = _d(cv_pred[c][i], eng.T[i * (eng.F + 1)], s.epsilon)
@@ -410,14 +465,7 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
         effs = [eng.registry[n] for n in c.split("+")]
         refined[c] = _refine(eng, effs, list(selections[c]), s.refine_iter, cand_datasets[c], s.refine_starts)
         say(f"refined {c} ({eng.n_fits} fits so far)")
-    # ---- per data set results
-    out = []
-    for i, dat in enumerate(data):
-        out.append(_dataset_result(eng, i, dat, cand_datasets, cand_params, selections, refined, cv_pred,
-                                   None if cal is None else cal[i], single_cands))
-        sm = out[-1].summary
-        say(f"{dat.name}: {sm['decision']}; held-out gap {sm['gap_before']:.3f} -> {sm['gap_after']:.3f} (1 - D_cv)")
-    return out
+    return refined
 
 
 def _at_bounds(e: Effect, theta: np.ndarray) -> list[str]:
