@@ -281,6 +281,8 @@ def _cmd_diagnose(args) -> int:
     outputs = {k: out / f"{k}.csv" for k in DATASET_FILES}
     outputs.update({f"fig_{k}": out / f"fig_{k}.png" for k in FIGURES})
     outputs.update({"summary": out / "summary.json", "report": out / "report.md"})
+    if args.extra_trials:
+        outputs["update"] = out / "update.csv"
     try:
         directions = build_directions(cfg)
         ctx = gap_context(cfg, model, directions)
@@ -289,7 +291,8 @@ def _cmd_diagnose(args) -> int:
         s = run_diagnosis(ctx, data, settings, directions,
                           gap_withheld_activations(cfg, ctx, args.dataset), outputs,
                           gap_settings_text(cfg, settings), model, discriminate_settings(cfg),
-                          head_from_config(cfg), cfg["geometry"]["plane_bands"], max(1, args.workers))
+                          head_from_config(cfg), cfg["geometry"]["plane_bands"], max(1, args.workers),
+                          extra_trials=args.extra_trials)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -381,6 +384,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="processes for the effects' grids and the calibration's screen (default 2, as the "
                         "pipeline rule; each may need about 1 GB more; the answer does not depend on it)")
+    d.add_argument("--extra-trials", default=None,
+                   help="CSV of additional trials (columns measurement, force_N; e.g. the proposed ones of "
+                        "discrimination.csv, measured): posterior of the top candidates given them (update.csv)")
     d.set_defaults(func=_cmd_diagnose)
 
     def trial_options(a):

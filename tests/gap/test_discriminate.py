@@ -7,6 +7,7 @@ import pytest
 from neckstrength.config import discriminate_settings, head_from_config
 from neckstrength.gap import diagnose as dg
 from neckstrength.gap import discriminate as dc
+from neckstrength.gap import report as rp
 from neckstrength.gap.effects import EFFECTS, compose
 from neckstrength.gap.fit import FitSettings, Simulator
 from neckstrength.gap.report import _discrimination_lines
@@ -97,3 +98,46 @@ def test_proposal_appears_in_a_diagnosis_when_the_leaders_are_close(cfg, ctx_p2)
     assert (last["cum_elbf_if_a"].to_numpy() >= tab[tab["step"] == 1]["cum_elbf_if_a"].to_numpy() - 1e-9).all()
     text = "\n".join(_discrimination_lines(diag))
     assert "Which tests would tell the leading candidates apart" in text and info["measurements"][0] in text
+
+
+def test_extra_trials_update_favours_the_injected_effect_and_rejects_bad_rows(cfg, ctx_p2, tmp_path):
+    """The update step: the proposed measurements, measured on the truth, give the injected effect the highest
+    posterior among the top candidates; a bad trial row is named by file, row and field."""
+    from neckstrength.gap.discriminate import extended_context
+    from neckstrength.session import InputError
+
+    ctx = ctx_p2
+    rng = np.random.default_rng(3)
+    F = ctx.model.strengths[None] * np.exp(rng.normal(0, 0.2, (1, ctx.model.m)))
+    theta = np.array([0.015, -0.01])
+    T = Simulator(ctx, compose(ctx, [EFFECTS["origin_offset"](ctx)], [theta])).forces(F)[0] * np.exp(
+        rng.normal(0, 0.03, ctx.K))
+    s = dg.DiagnosisSettings(effects=("origin_offset", "kinematic"), grid_points=3, folds=7, pairs_top=0,
+                             bootstrap=100, starts=1, reach_samples=0, reach_iter=0, fit=FitSettings(max_iter=10),
+                             seed=1)
+    diag = dg.diagnose(ctx, [dg.BlindData("x", T)], s)[0]
+    head, bands = head_from_config(cfg), cfg["geometry"]["plane_bands"]
+    ds = dc.DiscriminateSettings(p_best_below=1.01, fit=FitSettings(max_iter=10))
+    dc.attach_proposal(ctx, T, diag, head, ds, bands)
+    info = diag.summary["discrimination"]
+    assert "origin_offset" in info["candidates"]
+    pool = dc.measurement_pool(ctx, head, ds, bands)
+    chosen = pool.set_index("name").loc[info["measurements"]].reset_index()
+    ext = extended_context(ctx, chosen)
+    truth = Simulator(ext, compose(ext, [EFFECTS["origin_offset"](ext)], [theta])).forces(F)[0][ctx.K:]
+    path = tmp_path / "extra.csv"
+    path.write_text("measurement,force_N\n" + "".join(f"{m},{f * np.exp(rng.normal(0, 0.01)):.4f}\n"
+                                                       for m, f in zip(info["measurements"], truth)))
+    trials = dc.read_extra_trials(path, pool)
+    dc.attach_update(ctx, T, diag, head, trials, ds, bands)
+    u = diag.summary["update"]
+    assert u["favoured"] == "origin_offset" and u["trials"] == len(info["measurements"])
+    assert abs(sum(u["posterior"].values()) - 1) < 1e-9 and diag.update["candidate"].iloc[0] == "origin_offset"
+    assert "## Additional trials" in "\n".join(rp._update_lines(diag))
+    bad = tmp_path / "bad.csv"
+    bad.write_text(f"measurement,force_N\n{info['measurements'][0]},100\nnoSuchPoint,90\n")
+    with pytest.raises(InputError, match=r"bad.csv, line 3, field 'measurement'"):
+        dc.read_extra_trials(bad, pool)
+    bad.write_text(f"measurement,force_N\n{info['measurements'][0]},-4\n")
+    with pytest.raises(InputError, match=r"line 2, field 'force_N'"):
+        dc.read_extra_trials(bad, pool)

@@ -39,6 +39,7 @@ import itertools
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -349,9 +350,54 @@ PROPOSAL_COLUMNS = ["step", "measurement", "kind", "repeat_of", "planes", "azimu
                     "elbf_if_a", "elbf_if_b", "cum_elbf_if_a", "cum_elbf_if_b", "sigma"]
 
 
+def candidate_predictions(ctx: GapContext, forces: np.ndarray, diag, s: DiscriminateSettings,
+                          pool: pd.DataFrame) -> tuple[list[CandidatePrediction], float, str]:
+    """The predictives (:func:`predict_candidate`) of the top ``s.candidates`` of ``diag``'s ranking (at least 2)
+    on the measured directions followed by ``pool``, with the measurement noise and its source."""
+    top = diag.effects.sort_values("rank").reset_index(drop=True).head(max(2, int(s.candidates)))
+    sigma, src = noise_level(diag, s)
+    starts = _strength_starts(ctx, diag)
+    preds = [predict_candidate(ctx, forces, r.candidate, json.loads(r.theta_values), pool, sigma, s, starts)
+             for r in top.itertuples()]
+    return preds, sigma, src
+
+
+def predictive_choice(preds: Sequence[CandidatePrediction], K: int, idx: Sequence[int], log_forces: np.ndarray,
+                      sigma: float, prior: Sequence[float] | None = None) -> tuple[str, np.ndarray]:
+    """Which of the candidates the new measurements favour: the candidate with the highest posterior
+    ``prior_a x p_a(y)``, ``p_a`` its normal predictive of the new log forces ``log_forces`` at the pool
+    columns ``idx`` (a column may repeat: independent trials), mean its prediction and covariance
+    ``sigma^2 I + G Cov G'`` - the same predictive whose expected log Bayes factors the proposal maximises,
+    so the decision matches the design. Equal prior by default. Returns the label and the posterior
+    probabilities over ``preds`` (these assume that one of the candidates is true and the Laplace predictive;
+    a heuristic, not calibrated). A candidate that cannot produce a measured test (predicted force 0) gets
+    probability 0."""
+    ix = K + np.asarray(idx, int)
+    y = np.asarray(log_forces, float)
+    logp = np.zeros(len(preds))
+    for a, pr in enumerate(preds):
+        mu = pr.log_force[ix]
+        if not np.all(np.isfinite(mu)):
+            logp[a] = -np.inf
+            continue
+        S = pr.cov[np.ix_(ix, ix)] + sigma ** 2 * np.eye(len(ix))
+        L = np.linalg.cholesky(S)
+        z = np.linalg.solve(L, y - mu)
+        logp[a] = -0.5 * float(z @ z) - float(np.log(np.diag(L)).sum())
+    pri = np.full(len(preds), 1.0 / len(preds)) if prior is None else np.asarray(prior, float)
+    with np.errstate(divide="ignore"):
+        lp = logp + np.log(pri)
+    if not np.isfinite(lp).any():
+        return preds[int(np.argmax(pri))].label, pri / pri.sum()
+    w = np.exp(lp - lp.max())
+    w /= w.sum()
+    return preds[int(np.argmax(w))].label, w
+
+
 def propose_measurements(ctx: GapContext, forces: np.ndarray, diag, head: HeadEllipsoid,
                          s: DiscriminateSettings = DiscriminateSettings(), plane_bands: dict | None = None,
-                         pool: pd.DataFrame | None = None) -> tuple[pd.DataFrame, dict]:
+                         pool: pd.DataFrame | None = None, preds: Sequence[CandidatePrediction] | None = None
+                         ) -> tuple[pd.DataFrame, dict]:
     """The proposal table for one :class:`~neckstrength.gap.diagnose.DatasetDiagnosis` (empty when the best
     candidate's P(best) is not below ``s.p_best_below``) and a summary dict.
 
@@ -359,7 +405,8 @@ def propose_measurements(ctx: GapContext, forces: np.ndarray, diag, head: HeadEl
     measurement (a repeat of a measured direction or a new surface point; point, normal, planes), the
     pair's predicted forces, the expected log Bayes factor of this measurement alone if ``candidate_a``
     (``elbf_if_a``) or ``candidate_b`` (``elbf_if_b``) is true, and of all proposed measurements up to this
-    step (``cum_*``)."""
+    step (``cum_*``). ``preds``: the candidates' predictives on ``pool`` (:func:`candidate_predictions`), if
+    already computed."""
     ef = diag.effects.sort_values("rank").reset_index(drop=True)
     p_best = float(ef["p_best"].iloc[0])
     info = {"p_best_top": p_best, "threshold": s.p_best_below, "proposed": False}
@@ -368,12 +415,11 @@ def propose_measurements(ctx: GapContext, forces: np.ndarray, diag, head: HeadEl
                         "no bootstrap P(best) (gap.bootstrap = 0)" if not np.isfinite(p_best) else
                         f"not needed: P(best) of `{ef['candidate'].iloc[0]}` = {p_best:.2f} >= {s.p_best_below:g}")
         return pd.DataFrame(columns=PROPOSAL_COLUMNS), info
-    top = ef.head(max(2, int(s.candidates)))
-    sigma, src = noise_level(diag, s)
     pool = measurement_pool(ctx, head, s, plane_bands) if pool is None else pool
-    starts = _strength_starts(ctx, diag)
-    preds = [predict_candidate(ctx, forces, r.candidate, json.loads(r.theta_values), pool, sigma, s, starts)
-             for r in top.itertuples()]
+    if preds is None:
+        preds, sigma, src = candidate_predictions(ctx, forces, diag, s, pool)
+    else:
+        sigma, src = noise_level(diag, s)
     K = ctx.K
     mu = np.array([pr.log_force[K:] for pr in preds])
     cov = np.array([pr.cov[K:, K:] for pr in preds])
@@ -408,6 +454,93 @@ def propose_measurements(ctx: GapContext, forces: np.ndarray, diag, head: HeadEl
                                      for q, (a, b) in enumerate(pairs)} if trace else {}})
     return tab, info
 
+
+
+UPDATE_COLUMNS = ["candidate", "posterior", "log_predictive", "trials", "measurements"]
+
+
+def read_extra_trials(path, pool: pd.DataFrame) -> pd.DataFrame:
+    """The additional trials of a participant: a CSV with one row per trial, columns ``measurement`` (a pool
+    name: ``<direction>#2`` for a repeat of a test direction, ``azAAA_elEE`` for a surface point; as in
+    ``discrimination.csv``) and ``force_N`` (> 0); lines starting with ``#`` are comments (a ``#`` inside a
+    field is part of the name). Errors name the file, line and field."""
+    import csv
+
+    from neckstrength.session import InputError
+
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the extra trials ({exc})") from exc
+    lines = [(k, ln) for k, ln in enumerate(text.splitlines(), start=1) if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise InputError(f"{path}: no header (columns: measurement, force_N)")
+    header = [h.strip() for h in next(csv.reader([lines[0][1]]))]
+    for c in ("measurement", "force_N"):
+        if c not in header:
+            raise InputError(f"{path}, line {lines[0][0]}: missing column '{c}' (columns: measurement, force_N)")
+    im, jf = header.index("measurement"), header.index("force_N")
+    names = set(pool["name"])
+    rows = []
+    for k, ln in lines[1:]:
+        rec = [v.strip() for v in next(csv.reader([ln]))]
+        m = rec[im] if im < len(rec) else ""
+        if m not in names:
+            raise InputError(f"{path}, line {k}, field 'measurement': {m!r} is not a possible measurement (a test "
+                             "direction with '#2', or a surface point like 'az+030_el+60')")
+        try:
+            f = float(rec[jf]) if jf < len(rec) else np.nan
+        except ValueError:
+            f = np.nan
+        if not np.isfinite(f) or f <= 0:
+            raise InputError(f"{path}, line {k}, field 'force_N': {rec[jf] if jf < len(rec) else ''!r} is not a "
+                             "positive force")
+        rows.append((m, f))
+    if not rows:
+        raise InputError(f"{path}: no trials")
+    return pd.DataFrame(rows, columns=["measurement", "force_N"])
+
+
+def update_with_trials(ctx: GapContext, forces: np.ndarray, diag, head: HeadEllipsoid, trials: pd.DataFrame,
+                       s: DiscriminateSettings = DiscriminateSettings(), plane_bands: dict | None = None
+                       ) -> tuple[pd.DataFrame, dict]:
+    """Which of the top candidates the additional ``trials`` (:func:`read_extra_trials`) favour: their
+    posterior probabilities by :func:`predictive_choice` (equal prior over the top ``s.candidates``; the
+    predictive of each candidate from the measured directions, as the proposal uses). Simulation
+    (docs/gap_diagnosis.md) shows this decision gaining from the proposed measurements; the probabilities
+    assume that one of the candidates is true and are not calibrated."""
+    pool = measurement_pool(ctx, head, s, plane_bands)
+    preds, sigma, src = candidate_predictions(ctx, forces, diag, s, pool)
+    names = list(pool["name"])
+    idx = [names.index(m) for m in trials["measurement"]]
+    y = np.log(trials["force_N"].to_numpy(float))
+    label, w = predictive_choice(preds, ctx.K, idx, y, sigma)
+    logp = []
+    for pr in preds:
+        ix = ctx.K + np.asarray(idx)
+        mu = pr.log_force[ix]
+        if not np.all(np.isfinite(mu)):
+            logp.append(-np.inf)
+            continue
+        S = pr.cov[np.ix_(ix, ix)] + sigma ** 2 * np.eye(len(ix))
+        _, logdet = np.linalg.slogdet(S)
+        r = y - mu
+        logp.append(float(-0.5 * (r @ np.linalg.solve(S, r) + logdet + len(ix) * np.log(2 * np.pi))))
+    tab = pd.DataFrame({"candidate": [p.label for p in preds], "posterior": w, "log_predictive": logp,
+                        "trials": len(trials), "measurements": ";".join(trials["measurement"])},
+                       columns=UPDATE_COLUMNS).sort_values("posterior", ascending=False).reset_index(drop=True)
+    info = {"favoured": label, "posterior": {p.label: float(v) for p, v in zip(preds, w)}, "sigma": sigma,
+            "noise_source": src, "trials": len(trials), "measurements": list(trials["measurement"])}
+    return tab, info
+
+
+def attach_update(ctx: GapContext, forces: np.ndarray, diag, head: HeadEllipsoid, trials: pd.DataFrame,
+                  s: DiscriminateSettings = DiscriminateSettings(), plane_bands: dict | None = None):
+    """Add :func:`update_with_trials` to a diagnosis: ``diag.update`` and ``diag.summary['update']``."""
+    tab, info = update_with_trials(ctx, forces, diag, head, trials, s, plane_bands)
+    diag.update = tab
+    diag.summary["update"] = info
+    return diag
 
 
 def attach_proposal(ctx: GapContext, forces: np.ndarray, diag, head: HeadEllipsoid,

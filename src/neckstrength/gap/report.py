@@ -210,6 +210,22 @@ def _discrimination_lines(diag: DatasetDiagnosis) -> list[str]:
     return lines
 
 
+def _update_lines(diag: DatasetDiagnosis) -> list[str]:
+    """The top candidates' posterior given additional trials (gap.discriminate.update_with_trials)."""
+    info = diag.summary.get("update")
+    if not info:
+        return []
+    tab = getattr(diag, "update", pd.DataFrame())
+    return ["## Additional trials", "",
+            (f"{info['trials']} additional trial(s) ({', '.join(info['measurements'])}) favour "
+             f"**{info['favoured']}**. Posterior probabilities with an equal prior over the top candidates, from each "
+             f"candidate's predictive of the new trials (its fit on the measured directions, log-normal noise SD "
+             f"{info['sigma']:.3f}, parameter uncertainty): they assume that one of these candidates is true and are "
+             "not calibrated; in simulation this decision gained from the proposed measurements "
+             "(docs/gap_diagnosis.md)."), "",
+            markdown_table(tab[["candidate", "posterior", "log_predictive"]]) if len(tab) else "", ""]
+
+
 def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str, str], act: pd.DataFrame,
                  settings_text: str) -> str:
     s = diag.summary
@@ -245,6 +261,7 @@ def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str,
              "directions; `theta`: effect parameters of that fit.", "",
              f"![which]({figures['effects']})", "",
              *_discrimination_lines(diag),
+             *_update_lines(diag),
              "## Where: by plane", "", markdown_table(diag.planes.drop(columns=["directions"])), "",
              "## Where: by wrench component", "", markdown_table(diag.components), "",
              "## Where: by active muscle group", "", markdown_table(diag.muscles), "",

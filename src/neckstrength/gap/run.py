@@ -15,7 +15,14 @@ import numpy as np
 import pandas as pd
 
 from neckstrength.gap.diagnose import BlindData, DiagnosisSettings, diagnose
-from neckstrength.gap.discriminate import PROPOSAL_COLUMNS, DiscriminateSettings, attach_proposal
+from neckstrength.gap.discriminate import (
+    PROPOSAL_COLUMNS,
+    DiscriminateSettings,
+    attach_proposal,
+    attach_update,
+    measurement_pool,
+    read_extra_trials,
+)
 from neckstrength.gap.effects import GapContext
 from neckstrength.gap.report import activation_check, write_figures, write_report
 from neckstrength.gap.store import ResultStore
@@ -31,13 +38,16 @@ FIGURES = ("radar", "where", "effects", "activation")
 def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings, directions: pd.DataFrame,
                   a3: np.ndarray | None, outputs: Mapping[str, str | Path],
                   settings_text: str, model_name: str, discriminate: DiscriminateSettings | None = None,
-                 head: HeadEllipsoid | None = None, plane_bands: Mapping | None = None, workers: int = 1) -> dict:
+                 head: HeadEllipsoid | None = None, plane_bands: Mapping | None = None, workers: int = 1,
+                 extra_trials: str | Path | None = None) -> dict:
     """Diagnose one data set and write every output (keys of ``outputs``); returns the summary. ``workers``:
     processes that screen the calibration's simulated data sets (the answer does not depend on it).
 
     With ``discriminate`` and ``head`` (the cranial ellipsoid of the geometry), the measurements that would
     best tell the leading candidates apart are proposed when they are close
-    (:mod:`neckstrength.gap.discriminate`; output ``discrimination``)."""
+    (:mod:`neckstrength.gap.discriminate`; output ``discrimination``). ``extra_trials``: a CSV of additional
+    trials (``measurement``, ``force_N``; e.g. the proposed ones, measured): the posterior probabilities of the
+    top candidates given them (output ``update``, a section of the report)."""
     t0 = time.time()
     dataset = data.name
     s = settings
@@ -53,6 +63,18 @@ def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings,
               + (f"{', '.join(info['measurements'])} to tell {', '.join(info['candidates'])} apart"
                  if info["proposed"] else info.get("note", "none proposed")) + f" ({time.time() - t1:.1f} s)",
               flush=True)
+    if extra_trials is not None:
+        ds = discriminate or DiscriminateSettings()
+        if head is None:
+            raise ValueError("extra trials need the head geometry (geometry.head) for the measurement pool")
+        trials = read_extra_trials(extra_trials, measurement_pool(ctx, head, ds, plane_bands))
+        attach_update(ctx, data.forces, diag, head, trials, ds, plane_bands)
+        u = diag.summary["update"]
+        print(f"[{time.time() - t0:.0f} s] {u['trials']} extra trial(s) from {extra_trials}: favour "
+              f"{u['favoured']} (posterior {u['posterior'][u['favoured']]:.2f})", flush=True)
+        if "update" in outputs:
+            hdr_u = f"extra trials {extra_trials}: posterior of the top candidates (docs/gap_diagnosis.md)"
+            atomic_write_csv(diag.update, outputs["update"], [hdr_u], float_format="%.6g")
     act = activation_check(diag, a3)
     hdr = [f"gap diagnosis (issue 8): model {model_name}, data set {dataset}; forces only (Table A.3 withheld)"]
     tables = {"residuals": diag.residuals, "planes": diag.planes, "components": diag.components,
