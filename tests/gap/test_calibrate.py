@@ -105,6 +105,13 @@ def test_results_are_stored_per_data_set_and_a_rerun_resumes(ctx_p2, tmp_path, m
     s2 = _settings(replicates=0, alpha=0.01)                   # a changed setting: a new key, nothing reused
     with pytest.raises(AssertionError, match="refitted"):
         dg.diagnose(ctx_p2, data, s2, store=ResultStore(tmp_path, ctx_p2, s2))
+    # changed code (the source of the gap / solver / model modules): a new key, nothing reused
+    import neckstrength.gap.store as gs
+
+    assert gs.code_fingerprint() == gs.code_fingerprint() and len(gs.code_fingerprint()) == 64
+    monkeypatch.setattr(gs, "code_fingerprint", lambda: "another version")
+    with pytest.raises(AssertionError, match="refitted"):
+        dg.diagnose(ctx_p2, data, s, store=ResultStore(tmp_path, ctx_p2, s))
 
 
 def test_accuracy_table_splits_by_detectability():

@@ -2,8 +2,10 @@
 
 A result is stored under a key made of everything it depends on: the diagnosis settings (all of them, incl.
 the seed and the calibration), the model (name, strengths, moment arms), the test directions, the effect
-settings, and the data set's name and forces. A changed setting or input gives a new key, so a stale result is
-never reused; files of other keys are left alone (delete the folder to clean up).
+settings, the data set's name and forces, and the code that computes it (:func:`code_fingerprint`: the source of
+the gap, solver, model and estimation modules, so results of an older version are not reused after an upgrade). A
+changed setting, input or code gives a new key, so a stale result is never reused; files of other keys are left
+alone (delete the folder to clean up).
 """
 
 from __future__ import annotations
@@ -19,6 +21,22 @@ import numpy as np
 
 from neckstrength.gap.effects import GapContext
 from neckstrength.gap.engine import BlindData, DiagnosisSettings
+
+#: Sub-packages whose source enters :func:`code_fingerprint`.
+CODE_PACKAGES = ("gap", "wrench", "model", "estimation", "abc", "seeds.py")
+
+
+def code_fingerprint() -> str:
+    """Hash of the source files of :data:`CODE_PACKAGES` (any change to them, comments included, gives new keys:
+    rerunning costs time, reusing a result of other code could give a wrong answer)."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for pkg in CODE_PACKAGES:
+        files = sorted((root / pkg).rglob("*.py")) if (root / pkg).is_dir() else [root / pkg]
+        for f in files:
+            h.update(str(f.relative_to(root)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()
 
 
 def context_fingerprint(ctx: GapContext) -> str:
@@ -37,7 +55,8 @@ class ResultStore:
 
     def __init__(self, folder: str | Path, ctx: GapContext, settings: DiagnosisSettings):
         self.folder = Path(folder)
-        self.base = hashlib.sha256((context_fingerprint(ctx) + repr(settings)).encode()).hexdigest()
+        self.base = hashlib.sha256((context_fingerprint(ctx) + repr(settings) + code_fingerprint()).encode()
+                                   ).hexdigest()
 
     def path(self, data: BlindData) -> Path:
         h = hashlib.sha256(self.base.encode() + data.name.encode() + np.asarray(data.forces, float).tobytes())
