@@ -141,3 +141,26 @@ def test_extra_trials_update_favours_the_injected_effect_and_rejects_bad_rows(cf
     bad.write_text(f"measurement,force_N\n{info['measurements'][0]},-4\n")
     with pytest.raises(InputError, match=r"line 2, field 'force_N'"):
         dc.read_extra_trials(bad, pool)
+
+
+def test_predictive_density_and_choice_match_the_normal_predictive():
+    """predictive_logpdf is the multivariate normal log density (repeats share the parameter part); the choice
+    favours the candidate whose prediction the trials match, and rules out one that cannot produce a test."""
+    from scipy.stats import multivariate_normal
+
+    K, sigma = 2, 0.05
+    cov = np.zeros((5, 5))
+    cov[2:, 2:] = 0.02 ** 2
+    a = dc.CandidatePrediction("a", {}, np.zeros(1), 0.0, np.log([10.0, 10.0, 50.0, 60.0, 70.0]), cov)
+    b = dc.CandidatePrediction("b", {}, np.zeros(1), 0.0, np.log([10.0, 10.0, 55.0, 60.0, 77.0]), cov)
+    c = dc.CandidatePrediction("c", {}, np.zeros(1), 0.0, np.array([2.3, 2.3, np.log(50.0), -np.inf, 4.0]), cov)
+    idx, y = [0, 0, 2], np.log([51.0, 49.5, 70.5])                # pool column 0 measured twice
+    lp = dc.predictive_logpdf([a, b, c], K, idx, y, sigma)
+    ix = K + np.array(idx)
+    ref = multivariate_normal(a.log_force[ix], cov[np.ix_(ix, ix)] + sigma ** 2 * np.eye(3)).logpdf(y)
+    assert lp[0] == pytest.approx(ref, rel=1e-12) and lp[0] > lp[1] and np.isfinite(lp[2])
+    label, w = dc.predictive_choice([a, b], K, idx, y, sigma)
+    assert label == "a" and w[0] > 0.9 and abs(w.sum() - 1) < 1e-12
+    label, w = dc.predictive_choice([a, b], K, idx, y, sigma, prior=[1e-9, 1 - 1e-9])   # a prior can overrule
+    assert label == "b"
+    assert dc.predictive_choice([a, c], K, [1], np.log([60.0]), sigma)[1][1] == 0.0     # c cannot produce it

@@ -362,6 +362,25 @@ def candidate_predictions(ctx: GapContext, forces: np.ndarray, diag, s: Discrimi
     return preds, sigma, src
 
 
+def predictive_logpdf(preds: Sequence[CandidatePrediction], K: int, idx: Sequence[int], log_forces: np.ndarray,
+                      sigma: float) -> np.ndarray:
+    """Log density of the new log forces ``log_forces`` at the pool columns ``idx`` under each candidate's normal
+    predictive (mean its prediction, covariance ``sigma^2 I + G Cov G'``); -inf where a candidate cannot produce
+    a measured test."""
+    ix = K + np.asarray(idx, int)
+    y = np.asarray(log_forces, float)
+    logp = np.zeros(len(preds))
+    for a, pr in enumerate(preds):
+        mu = pr.log_force[ix]
+        if not np.all(np.isfinite(mu)):
+            logp[a] = -np.inf
+            continue
+        L = np.linalg.cholesky(pr.cov[np.ix_(ix, ix)] + sigma ** 2 * np.eye(len(ix)))
+        z = np.linalg.solve(L, y - mu)
+        logp[a] = -0.5 * float(z @ z) - float(np.log(np.diag(L)).sum()) - 0.5 * len(ix) * np.log(2 * np.pi)
+    return logp
+
+
 def predictive_choice(preds: Sequence[CandidatePrediction], K: int, idx: Sequence[int], log_forces: np.ndarray,
                       sigma: float, prior: Sequence[float] | None = None) -> tuple[str, np.ndarray]:
     """Which of the candidates the new measurements favour: the candidate with the highest posterior
@@ -372,18 +391,7 @@ def predictive_choice(preds: Sequence[CandidatePrediction], K: int, idx: Sequenc
     probabilities over ``preds`` (these assume that one of the candidates is true and the Laplace predictive;
     a heuristic, not calibrated). A candidate that cannot produce a measured test (predicted force 0) gets
     probability 0."""
-    ix = K + np.asarray(idx, int)
-    y = np.asarray(log_forces, float)
-    logp = np.zeros(len(preds))
-    for a, pr in enumerate(preds):
-        mu = pr.log_force[ix]
-        if not np.all(np.isfinite(mu)):
-            logp[a] = -np.inf
-            continue
-        S = pr.cov[np.ix_(ix, ix)] + sigma ** 2 * np.eye(len(ix))
-        L = np.linalg.cholesky(S)
-        z = np.linalg.solve(L, y - mu)
-        logp[a] = -0.5 * float(z @ z) - float(np.log(np.diag(L)).sum())
+    logp = predictive_logpdf(preds, K, idx, log_forces, sigma)
     pri = np.full(len(preds), 1.0 / len(preds)) if prior is None else np.asarray(prior, float)
     with np.errstate(divide="ignore"):
         lp = logp + np.log(pri)
@@ -515,17 +523,7 @@ def update_with_trials(ctx: GapContext, forces: np.ndarray, diag, head: HeadElli
     idx = [names.index(m) for m in trials["measurement"]]
     y = np.log(trials["force_N"].to_numpy(float))
     label, w = predictive_choice(preds, ctx.K, idx, y, sigma)
-    logp = []
-    for pr in preds:
-        ix = ctx.K + np.asarray(idx)
-        mu = pr.log_force[ix]
-        if not np.all(np.isfinite(mu)):
-            logp.append(-np.inf)
-            continue
-        S = pr.cov[np.ix_(ix, ix)] + sigma ** 2 * np.eye(len(ix))
-        _, logdet = np.linalg.slogdet(S)
-        r = y - mu
-        logp.append(float(-0.5 * (r @ np.linalg.solve(S, r) + logdet + len(ix) * np.log(2 * np.pi))))
+    logp = predictive_logpdf(preds, ctx.K, idx, y, sigma)
     tab = pd.DataFrame({"candidate": [p.label for p in preds], "posterior": w, "log_predictive": logp,
                         "trials": len(trials), "measurements": ";".join(trials["measurement"])},
                        columns=UPDATE_COLUMNS).sort_values("posterior", ascending=False).reset_index(drop=True)
