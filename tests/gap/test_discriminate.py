@@ -134,6 +134,10 @@ def test_extra_trials_update_favours_the_injected_effect_and_rejects_bad_rows(cf
     assert u["favoured"] == "origin_offset" and u["trials"] == len(info["measurements"])
     assert abs(sum(u["posterior"].values()) - 1) < 1e-9 and diag.update["candidate"].iloc[0] == "origin_offset"
     assert "## Additional trials" in "\n".join(rp._update_lines(diag))
+    # the update reused the proposal's predictions; computed afresh they give the same posterior
+    del diag._predictions
+    fresh = dc.update_with_trials(ctx, T, diag, head, trials, ds, bands)[1]
+    assert fresh["posterior"] == pytest.approx(u["posterior"], rel=1e-9)
     bad = tmp_path / "bad.csv"
     bad.write_text(f"measurement,force_N\n{info['measurements'][0]},100\nnoSuchPoint,90\n")
     with pytest.raises(InputError, match=r"bad.csv, line 3, field 'measurement'"):

@@ -334,18 +334,10 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
     cand_datasets: dict[str, set[int]] = {c: set(range(eng.nd)) for c in cand_keys}
     per_problem = {c: [list(keys) for _ in range(eng.P)] for c, keys in cand_keys.items()}
 
-    def scores_for(c):
-        chosen = _selection(eng, per_problem[c])
-        out = []
-        for i in range(eng.nd):
-            pred = _cv_predictions(eng, chosen, i)
-            out.append(pred)
-        return chosen, out
-
     selections = {}
     cv_pred = {}
     for c in cand_keys:
-        selections[c], cv_pred[c] = scores_for(c)
+        selections[c], cv_pred[c] = _scores_for(eng, per_problem[c])
 
     # ---- pairs and refinement (they depend on the base and single-effect fits only) and the calibration
     # (its own simulated data sets): with workers, pairs and refinement run in a forked process meanwhile
@@ -392,6 +384,12 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
     return out
 
 
+def _scores_for(eng: _Engine, keys_per_problem: list[list[tuple]]) -> tuple[list[tuple], list[np.ndarray]]:
+    """A candidate's chosen key per problem (lowest training loss) and each data set's held-out predictions."""
+    chosen = _selection(eng, keys_per_problem)
+    return chosen, [_cv_predictions(eng, chosen, i) for i in range(eng.nd)]
+
+
 #: The arguments of :func:`_pairs_and_refinement` for a forked worker (the engine's solvers cannot be pickled).
 _TAIL: dict = {}
 
@@ -409,10 +407,6 @@ def _pairs_and_refinement(eng: _Engine, cand_keys, per_problem, selections, cv_p
     points, then the pattern-search refinement of every candidate's all-direction fits; adds the pairs to the
     dicts in place and returns the refined keys per candidate."""
     s = eng.s
-
-    def scores_for(c):
-        chosen = _selection(eng, per_problem[c])
-        return chosen, [_cv_predictions(eng, chosen, i) for i in range(eng.nd)]
 
     def cv_score(c, i):
         d = _d(cv_pred[c][i], eng.T[i * (eng.F + 1)], s.epsilon)
@@ -455,7 +449,7 @@ def _pairs_and_refinement(eng: _Engine, cand_keys, per_problem, selections, cv_p
             eng.evaluate(key, warm, mask)
         cand_params[lab] = ea.n_params + eb.n_params
         cand_datasets[lab] = set(dss)
-        selections[lab], cv_pred[lab] = scores_for(lab)
+        selections[lab], cv_pred[lab] = _scores_for(eng, per_problem[lab])
         say(f"pair {lab}: {len(combos)} parameter combinations for {len(dss)} data set(s) ({eng.n_fits} fits)")
     # ---- refinement of the all-direction fits' effect parameters
     refined: dict[str, list[tuple]] = {c: list(selections[c]) for c in selections}

@@ -428,6 +428,7 @@ def propose_measurements(ctx: GapContext, forces: np.ndarray, diag, head: HeadEl
         preds, sigma, src = candidate_predictions(ctx, forces, diag, s, pool)
     else:
         sigma, src = noise_level(diag, s)
+    diag._predictions = (s, pool, preds, sigma, src)   # for update_with_trials (not stored with the diagnosis)
     K = ctx.K
     mu = np.array([pr.log_force[K:] for pr in preds])
     cov = np.array([pr.cov[K:, K:] for pr in preds])
@@ -518,7 +519,11 @@ def update_with_trials(ctx: GapContext, forces: np.ndarray, diag, head: HeadElli
     (docs/gap_diagnosis.md) shows this decision gaining from the proposed measurements; the probabilities
     assume that one of the candidates is true and are not calibrated."""
     pool = measurement_pool(ctx, head, s, plane_bands)
-    preds, sigma, src = candidate_predictions(ctx, forces, diag, s, pool)
+    cached = getattr(diag, "_predictions", None)
+    if cached is not None and cached[0] == s and cached[1].equals(pool):
+        preds, sigma, src = cached[2:]                    # the proposal's, same settings and pool
+    else:
+        preds, sigma, src = candidate_predictions(ctx, forces, diag, s, pool)
     names = list(pool["name"])
     idx = [names.index(m) for m in trials["measurement"]]
     y = np.log(trials["force_N"].to_numpy(float))
