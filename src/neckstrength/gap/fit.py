@@ -149,7 +149,7 @@ class Simulator:
         return self.run(self.muscles(phi), active_only=True)[0]
 
     @_one_blas_thread
-    def forces_grad_phi(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def forces_grad_phi(self, phi: np.ndarray, lazy: bool = False):
         """Forces (N x K) and their exact derivatives d F / d phi (N x K x p) on the active candidate set.
 
         Envelope theorem on the LP (Eq. 4.1 / 5.2 in muscle forces): at an optimal vertex the multiplier
@@ -159,6 +159,12 @@ class Simulator:
         is solved from the interior columns of the returned activations (least squares, min-norm at
         degenerate vertices); the chain rule goes through the column map ``A``, the force scale and
         ``f = exp(phi)[pidx]``. One LP per sample and direction instead of ``p + 1`` for finite differences.
+
+        Only the candidate wrench that gives each test's force (the maximum over its J candidates) enters
+        the derivative, so ``lam`` is solved for that one only. With ``lazy`` the derivatives are not
+        computed here: returns the forces and a function ``rows -> (len(rows) x K x p)`` derivatives of
+        those rows (the same numbers), so that a caller that keeps one of several trial points pays the
+        linear algebra for that one only.
         """
         phi = np.atleast_2d(np.asarray(phi, float))
         Fm = self.muscles(phi)                                   # (N, m) base-model strengths
@@ -172,37 +178,55 @@ class Simulator:
         self.n_lp += w_s.size
         ok = np.isfinite(w_s) & (status_s == _OPT) & (w_s > 0)
         w_s = np.where(ok, w_s, 0.0)
-        al = np.nan_to_num(alpha_s)                              # (N, S, m')
-        lb, ub = self.lb[sel], self.ub[sel]                      # (S, m')
-        tol = 1e-7
-        interior = (al > lb[None] + tol) & (al < ub[None] - tol) & (Fa[:, None, :] > 0)
-        Rm = self.model.moment_arms                              # (n, m')
-        b = (self.model.JT @ self.U[sel].T).T                    # (S, n)
-        n = Rm.shape[0]
-        S = b.shape[0]
-        RR = (Rm[:, None, :] * Rm[None, :, :]).reshape(n * n, -1).T          # (m', n*n) outer products R_j R_j'
-        G = (interior.reshape(N * S, -1).astype(float) @ RR).reshape(N, S, n, n)
-        G += (b[:, :, None] * b[:, None, :])[None]
-        scale = np.trace(G, axis1=2, axis2=3)[..., None, None]
-        G += 1e-12 * np.maximum(scale, 1e-30) * np.eye(n)[None, None]
-        lam = np.linalg.solve(G, np.broadcast_to(b[None], (N,) + b.shape)[..., None])[..., 0]   # (N, S, n)
-        gcol = (lam @ Rm) * al * ok[..., None]                                              # dw/dFa (N, S, m')
-        gcol = gcol * (Fa > 0)[:, None, :]
-        gmus = gcol @ inst.A                                     # dw/dF base muscles (N, S, m)
         wf = np.full((N, K * J), -1.0)
         wf[:, sel] = w_s
         fm = np.repeat(self.fmul.reshape(1, K * J), N, axis=0)
         forces = np.where(wf >= 0, wf * fm, -1.0).reshape(N, K, J)
         j = forces.argmax(axis=2)
         f = np.maximum(np.take_along_axis(forces, j[..., None], 2)[..., 0], 0.0)
-        gfull = np.zeros((N, K * J, gmus.shape[2]))
-        gfull[:, sel] = gmus * self.fmul.reshape(K * J)[sel][None, :, None]
-        g = np.take_along_axis(gfull.reshape(N, K, J, -1), j[..., None, None], 2)[:, :, 0]   # (N, K, m)
+        # position of each test's maximising candidate among the solved ones (columns of w_s / alpha_s)
+        col = np.cumsum(sel) - 1
+        s_of = col[np.arange(K)[None, :] * J + j]                # (N, K)
+
+        def grad(rows=None) -> np.ndarray:
+            with single_threaded_blas():
+                return self._grad_phi(Fm, Fa, w_s, alpha_s, ok, s_of, sel, rows)
+
+        return (f, grad) if lazy else (f, grad())
+
+    def _grad_phi(self, Fm, Fa, w_s, alpha_s, ok, s_of, sel, rows) -> np.ndarray:
+        """d F / d phi (R x K x p) of :meth:`forces_grad_phi` for the strength vectors ``rows`` (all if None)."""
+        if rows is not None:
+            rows = np.asarray(rows, dtype=np.int64)
+            Fm, Fa, s_of = Fm[rows], Fa[rows], s_of[rows]
+        else:
+            rows = np.arange(len(Fm))
+        inst = self.inst
+        N, K = s_of.shape
+        r2 = rows[:, None]
+        al = np.nan_to_num(alpha_s[r2, s_of])                    # (N, K, m') activations at the maximum
+        okg = ok[r2, s_of]                                       # (N, K)
+        lb, ub = self.lb[sel][s_of], self.ub[sel][s_of]          # (N, K, m')
+        tol = 1e-7
+        interior = (al > lb + tol) & (al < ub - tol) & (Fa[:, None, :] > 0)
+        Rm = self.model.moment_arms                              # (n, m')
+        bs = (self.model.JT @ self.U[sel].T).T                   # (S, n)
+        b = bs[s_of]                                             # (N, K, n)
+        n = Rm.shape[0]
+        RR = (Rm[:, None, :] * Rm[None, :, :]).reshape(n * n, -1).T          # (m', n*n) outer products R_j R_j'
+        G = (interior.reshape(N * K, -1).astype(float) @ RR).reshape(N, K, n, n)
+        G += b[..., :, None] * b[..., None, :]
+        scale = np.trace(G, axis1=2, axis2=3)[..., None, None]
+        G += 1e-12 * np.maximum(scale, 1e-30) * np.eye(n)[None, None]
+        lam = np.linalg.solve(G, b[..., None])[..., 0]                                     # (N, K, n)
+        gcol = (lam @ Rm) * al * okg[..., None]                                             # dw/dFa (N, K, m')
+        gcol = gcol * (Fa > 0)[:, None, :]
+        gmus = gcol @ inst.A                                     # dw/dF base muscles (N, K, m)
+        g = gmus * self.fmul.reshape(-1)[sel][s_of][..., None]
         p = int(self.pidx.max()) + 1
         onehot = np.zeros((len(self.pidx), p))
         onehot[np.arange(len(self.pidx)), self.pidx] = 1.0
-        dphi = (g * Fm[:, None, :]) @ onehot                                            # (N, K, p)
-        return f, dphi
+        return (g * Fm[:, None, :]) @ onehot                                            # (N, K, p)
 
 
 @dataclass
@@ -248,8 +272,9 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
     ``phi0`` (P x p) start; ``prior`` (P x p) ridge centre; bounds are ``prior + log(bounds_rel)``.
     Held-out directions enter neither the loss nor any step (their weight is 0), only the returned
     predictions. ``fgrad(phi)`` (optional) returns forces and their exact Jacobian (N x K x p,
-    :meth:`Simulator.forces_grad_phi`); then each iteration solves the LPs of the damping trials only
-    (the Jacobian at the accepted trial comes with it) instead of ``p`` extra forward differences.
+    :meth:`Simulator.forces_grad_phi`, called with ``lazy=True`` for the trials); then each iteration
+    solves the LPs of the damping trials only (the Jacobian at the accepted trial comes from the same
+    solves) instead of ``p`` extra forward differences.
     """
     s = settings
     T = np.asarray(targets, float)
@@ -296,9 +321,8 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
             steps[:, t] = -np.linalg.solve(Hm, g[..., None])[..., 0]
         trial = np.clip(ph[:, None, :] + steps, lo[idx][:, None, :], hi[idx][:, None, :])
         if Jac is not None:
-            Ft, Jt = fgrad(trial.reshape(-1, p))
+            Ft, grad_rows = fgrad(trial.reshape(-1, p), lazy=True)
             Ft = Ft.reshape(A, len(mults), -1)
-            Jt = Jt.reshape(A, len(mults), Ft.shape[2], p)
         else:
             Ft = fforces(trial.reshape(-1, p)).reshape(A, len(mults), -1)
         lt, st = _loss(Ft, T[idx][:, None, :], W[idx][:, None, :], trial, prior[idx][:, None, :], s.ridge)
@@ -306,13 +330,19 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
         lb = lt[np.arange(A), best]
         better = lb < loss[idx]
         rel = np.where(better, (loss[idx] - lb) / np.maximum(loss[idx], 1e-300), 0.0)
+        if Jac is not None:
+            # the Jacobian of the accepted trials only
+            acc = np.flatnonzero(better)
+            Jt = np.zeros((A, Ft.shape[2], p))
+            if acc.size:
+                Jt[acc] = grad_rows(acc * len(mults) + best[acc])
         for a, i in enumerate(idx):
             iters[i] += 1
             if better[a]:
                 phi[i] = trial[a, best[a]]
                 F[i] = Ft[a, best[a]]
                 if Jac is not None:
-                    Jac[i] = Jt[a, best[a]]
+                    Jac[i] = Jt[a]
                 loss[i], sse[i] = lb[a], st[a, best[a]]
                 mu[i] = max(mu[i] * mults[best[a]], 1e-12)
                 stall[i] = stall[i] + 1 if rel[a] < s.tol else 0
