@@ -128,6 +128,21 @@ def _basis_matrix(AT, basic, B):
 
 
 @njit(cache=True, nogil=True, fastmath=_FM)
+def _tf(AT, Binv, status, s, f, k):
+    """``|T_k| f = sum_j |sum_i Binv_ki A_ij| s_j f_j`` over the nonbasic columns (the size of the terms of
+    basic variable ``k``, for its tolerance)."""
+    mp1, n = AT.shape
+    tf = 0.0
+    for j in range(mp1 - 1):
+        if status[j] != BASIC and s[j] != 0.0:
+            t = 0.0
+            for i in range(n):
+                t += Binv[k, i] * AT[j, i]
+            tf += abs(t) * s[j] * f[j]
+    return tf
+
+
+@njit(cache=True, nogil=True, fastmath=_FM)
 def _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_tol, dual_tol, gap_rel,
              max_cond, alpha_out, want_alpha, B, Binv, y, d, s, rhs, xB):
     """Optimality certificate of a basis for ``f``, from scratch. Returns (ok, w).
@@ -204,25 +219,22 @@ def _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_t
         for i in range(n):
             v += Binv[k, i] * rhs[i]
         xB[k] = v
-        # |T_k| f = sum_j |sum_i Binv_ki A_ij| s_j f_j
-        tf = 0.0
-        for j in range(m):
-            if status[j] != BASIC and s[j] != 0.0:
-                t = 0.0
-                for i in range(n):
-                    t += Binv[k, i] * AT[j, i]
-                tf += abs(t) * s[j] * f[j]
+        # each test's tolerance grows with tf = |T_k| f >= 0, so the test is first made without that term:
+        # where it passes, it passes with it too (the same decision); tf is computed only where it fails
         jb = basic[k]
         if jb < m:
-            tol = primal_tol * (tf + f[jb] + fmean)
+            tol = primal_tol * (f[jb] + fmean)
             if v - lb[jb] * f[jb] + tol < 0.0 or ub[jb] * f[jb] - v + tol < 0.0:
-                ok = False
+                tol = primal_tol * (_tf(AT, Binv, status, s, f, k) + f[jb] + fmean)
+                if v - lb[jb] * f[jb] + tol < 0.0 or ub[jb] * f[jb] - v + tol < 0.0:
+                    ok = False
         elif jb == m:
             ws = 0.0
             for j in range(m):
                 ws += wscale[j] * f[j]
-            if v + primal_tol * (tf + ws) < 0.0:
-                ok = False
+            if v + primal_tol * ws < 0.0:
+                if v + primal_tol * (_tf(AT, Binv, status, s, f, k) + ws) < 0.0:
+                    ok = False
             w = v
             w_basic = True
         else:
@@ -232,9 +244,9 @@ def _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_t
             for j in range(m):
                 rs += Rscale[i, j] * f[j]
                 ws += wscale[j] * f[j]
-            tol = primal_tol * (tf + rs + absb[i] * ws)
-            if abs(v) > tol:
-                ok = False
+            if abs(v) > primal_tol * (rs + absb[i] * ws):
+                if abs(v) > primal_tol * (_tf(AT, Binv, status, s, f, k) + rs + absb[i] * ws):
+                    ok = False
         if not ok:
             return False, 0.0
     if gapf > 0.0 and not gap_rel * w - gapf >= 0.0:
