@@ -1029,7 +1029,9 @@ class DirectionSolver:
         uniq = np.flatnonzero(np.bincount(lab, minlength=len(bases)))   # slots of the bases these rows use only
         pos = np.empty(len(bases), dtype=np.int64)
         pos[uniq] = np.arange(uniq.size)
-        slot = np.array([self._slot(bases[i]) for i in uniq], dtype=np.int64)
+        gen = self._slot_gen
+        slot = np.array([bb.pad[1] if bb.pad is not None and bb.pad[0] == gen else self._slot(bb)
+                         for bb in map(bases.__getitem__, uniq.tolist())], dtype=np.int64)
         CW3, qv, wb, P3, isb = self._slots
         R = rows.size
         ok = np.empty(R, dtype=np.bool_)
@@ -1049,9 +1051,11 @@ class DirectionSolver:
         src[g] = offset + lab
         open_[g] = False
         counts = np.bincount(lab, minlength=len(bases))
-        for bi in np.flatnonzero(counts):
-            bases[bi].hits += counts[bi]
-            bases[bi].total += int(counts[bi])
+        nz = np.flatnonzero(counts)
+        for bi, c in zip(nz.tolist(), counts[nz].tolist()):
+            bb = bases[bi]
+            bb.hits += c
+            bb.total += c
 
     def _check_compiled(self, F, rows, lab, bases, offset, w, alpha, alpha_done, src, open_) -> np.ndarray:
         """:meth:`_check_pairs`, then the rows that pass get ``w`` (and ``alpha``), ``src = offset + lab``
