@@ -184,7 +184,7 @@ class _Engine:
             res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), res.phi, rep(self.prior), self.s.fit,
                                 grad)
         if sim.inst.J > 1:
-            res.forces = sim.run(sim.muscles(res.phi))[0]
+            res.forces = sim.forces_all(sim.muscles(res.phi))     # the last refresh's, if at these points
             res.loss, res.sse = _train_loss(res.forces, rep(self.T), rep(self.W), res.phi, rep(self.prior),
                                             self.s.fit.ridge)
         self.n_fits += len(phi0)
@@ -217,7 +217,7 @@ class _Engine:
         full_of[self.pds[full]] = np.nonzero(full)[0]
         src = full_of[self.pds[fold_idx]]
         sim = self.sim(key, keep=True)
-        sim.refresh(sim.muscles(res["phi"][src]))
+        sim.refresh(sim.muscles(res["phi"][np.unique(src)]))        # once per data set (its folds share the start)
         T, W, prior = self.T[fold_idx], self.W[fold_idx], self.prior[fold_idx]
         lo = prior + np.log(self.s.fit.bounds_rel[0])
         hi = prior + np.log(self.s.fit.bounds_rel[1])

@@ -128,16 +128,28 @@ class Simulator:
         return f, st, j, a
 
     def refresh(self, F: np.ndarray) -> bool:
-        """Evaluate all candidates at ``F``; add the maximising ones to the active set. True if it grew."""
+        """Evaluate all candidates at ``F``; add the maximising ones to the active set. True if it grew.
+
+        The forces over all candidates at ``F`` are kept (:meth:`forces_all`), so that a caller who wants
+        them at the same point does not solve the same LPs again."""
         if self.inst.J == 1:
             return False
-        _, _, j, _ = self.run(F)
+        f, _, j, _ = self.run(F)
+        self._last_all = (np.array(F, float, copy=True), f)
         before = self.active.sum()
         for k in range(self.K):
             self.active[k, np.unique(j[:, k])] = True
         return bool(self.active.sum() > before)
 
     def forces(self, F: np.ndarray) -> np.ndarray:
+        return self.run(F)[0]
+
+    def forces_all(self, F: np.ndarray) -> np.ndarray:
+        """:meth:`forces` over all candidates; those of the last :meth:`refresh` if it was at ``F``."""
+        last = getattr(self, "_last_all", None)
+        F = np.atleast_2d(np.asarray(F, float))
+        if last is not None and last[0].shape == F.shape and np.array_equal(last[0], F):
+            return last[1]
         return self.run(F)[0]
 
     def muscles(self, phi: np.ndarray) -> np.ndarray:
