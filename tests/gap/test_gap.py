@@ -141,15 +141,17 @@ def test_benchmark_identifies_a_strong_cocontraction_floor(ctx_s3):
 
 def test_same_answer_alone_in_a_batch_and_in_any_order(ctx_p2):
     # issue 17: every random draw of a data set (folds, bootstrap, reach samples) derives from the seed and its
-    # name, so a data set's diagnosis does not depend on which other data sets are diagnosed with it, or their order
+    # name, so a data set's diagnosis does not depend on which other data sets are diagnosed with it, or their order;
+    # direction_tolerance's candidate wrenches: an active set per data set (one shared by the batch made a benchmark
+    # case's held-out gap 0.037 alone and 0.071 in a batch of 22)
     sim = Simulator(ctx_p2, base_instance(ctx_p2))
     rng = np.random.default_rng(11)
     F = ctx_p2.model.strengths[None] * np.exp(rng.normal(0, 0.2, (3, ctx_p2.model.m)))
     T = sim.forces(F) * np.exp(rng.normal(0, 0.05, (3, ctx_p2.K)))
     data = [dg.BlindData(n, T[i]) for i, n in enumerate(("subject1", "lab-B_2", "S003"))]
-    s = dg.DiagnosisSettings(effects=("cocontraction", "kinematic"), grid_points=2, folds=4, pairs_top=0,
-                             bootstrap=50, starts=1, reach_samples=20, reach_iter=1, fit=FitSettings(max_iter=6),
-                             seed=5)
+    s = dg.DiagnosisSettings(effects=("cocontraction", "kinematic", "direction_tolerance"), grid_points=2, folds=4,
+                             pairs_top=0, bootstrap=50, starts=1, reach_samples=20, reach_iter=1,
+                             fit=FitSettings(max_iter=6), seed=5)
     alone = dg.diagnose(ctx_p2, [data[1]], s)[0]
     batch = {d.name: d for d in dg.diagnose(ctx_p2, data, s)}
     rev = {d.name: d for d in dg.diagnose(ctx_p2, data[::-1], s)}

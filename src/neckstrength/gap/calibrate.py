@@ -105,22 +105,9 @@ def screen(ctx: GapContext, data: list[BlindData], folds: np.ndarray, effects: l
            s: DiagnosisSettings, say=None, workers: int = 1) -> Screen:
     """Base model and every single effect on its grid, cross-validated on ``folds`` (data sets x K), all data
     sets fitted alike (the diagnosis's start point, the calibration's ``starts`` and ``max_iter``).
-    ``workers`` > 1: the data sets are split into that many groups, screened in parallel (one group in this
-    process, the others in forked worker processes); a data set's scores do not depend on its group."""
-    n = len(data)
-    workers = max(1, min(int(workers), n // 4))        # groups of at least 4 data sets
-    if workers > 1:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
-        cuts = np.linspace(0, n, workers + 1).round().astype(int)
-        groups = [slice(cuts[k], cuts[k + 1]) for k in range(workers)]
-        with ProcessPoolExecutor(workers - 1, mp_context=mp.get_context("fork")) as ex:
-            futs = [ex.submit(screen, ctx, data[g], folds[g], effects, s) for g in groups[1:]]
-            parts = [screen(ctx, data[groups[0]], folds[groups[0]], effects, s, say)] + [f.result() for f in futs]
-        return Screen([nm for p in parts for nm in p.names], parts[0].candidates,
-                      np.vstack([p.gap for p in parts]), np.vstack([p.structure for p in parts]),
-                      np.vstack([p.rms for p in parts]))
+    ``workers`` > 1: the effects are shared out over that many processes (this one and forked workers), each
+    screening every data set (:func:`single_effect_grids`): larger batches cost less per data set than the
+    data sets split into groups (before 2026-11-24 evening); a data set's scores do not depend on either."""
     cs = s.calibration
     s2 = DiagnosisSettings(**{**s.__dict__, "starts": cs.starts,
                               "fit": FitSettings(**{**s.fit.__dict__, "max_iter": cs.max_iter})})
@@ -130,7 +117,7 @@ def screen(ctx: GapContext, data: list[BlindData], folds: np.ndarray, effects: l
         eng.evaluate_one_step((), eng.prior, one)
     else:
         eng.evaluate((), eng.prior)
-    keys = single_effect_grids(eng, effects, say, tag="  simulated data: ", one_step=one)
+    keys = single_effect_grids(eng, effects, say, tag="  simulated data: ", one_step=one, workers=workers)
     preds = {c: cv_predictions(eng, k) for c, k in keys.items()}
     T = np.array([d.forces for d in data], float)
     return screen_scores(ctx, T, preds, s.epsilon, plane_indicators(ctx.directions), [d.name for d in data])

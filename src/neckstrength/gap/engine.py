@@ -175,14 +175,26 @@ class _Engine:
         phi0 = phi0 + pert
         rep = lambda a: np.repeat(a[idx], S, axis=0)  # noqa: E731
         sim = self.sim(key, keep)
-        sim.refresh(sim.muscles(phi0))       # candidate wrenches that are maximal at the start points
         grad = sim.forces_grad_phi if self.s.fit.exact_gradient else None
-        res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), phi0, rep(self.prior), self.s.fit, grad)
-        for _ in range(self.max_rounds):     # active set of candidate wrenches (direction_tolerance)
-            if not sim.refresh(sim.muscles(res.phi)):
+        own = None
+        if sim.inst.J > 1:
+            # candidate wrenches (direction_tolerance): an active set per data set (the candidates maximal at
+            # the start or end point of any of its problems), so that its fits do not depend on the batch
+            own = np.repeat(self.pds[idx], S)
+            sim.refresh_rows(sim.muscles(phi0), own)
+        res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), phi0, rep(self.prior), self.s.fit, grad,
+                            owner=own)
+        for _ in range(self.max_rounds if own is not None else 0):
+            # a data set whose problems' fits end where another candidate is maximal adds it, and its problems
+            # are fitted again
+            grew = np.flatnonzero(sim.refresh_rows(sim.muscles(res.phi), own))
+            if grew.size == 0:
                 break
-            res = fit_strengths(sim.forces_phi, rep(self.T), rep(self.W), res.phi, rep(self.prior), self.s.fit,
-                                grad)
+            r2 = fit_strengths(sim.forces_phi, rep(self.T)[grew], rep(self.W)[grew], res.phi[grew],
+                               rep(self.prior)[grew], self.s.fit, grad, owner=own[grew])
+            res.phi[grew], res.loss[grew], res.sse[grew] = r2.phi, r2.loss, r2.sse
+            res.forces[grew] = r2.forces
+            res.iterations[grew] += r2.iterations
         if sim.inst.J > 1:
             res.forces = sim.forces_all(sim.muscles(res.phi))     # the last refresh's, if at these points
             res.loss, res.sse = _train_loss(res.forces, rep(self.T), rep(self.W), res.phi, rep(self.prior),
@@ -217,7 +229,11 @@ class _Engine:
         full_of[self.pds[full]] = np.nonzero(full)[0]
         src = full_of[self.pds[fold_idx]]
         sim = self.sim(key, keep=True)
-        sim.refresh(sim.muscles(res["phi"][np.unique(src)]))        # once per data set (its folds share the start)
+        # candidate wrenches (direction_tolerance): each data set's active set (from its all-direction fit)
+        # with the candidates maximal at that fit (its folds' common start)
+        us = np.unique(src)
+        own_fold = self.pds[fold_idx]
+        sim.refresh_rows(sim.muscles(res["phi"][us]), self.pds[us])
         T, W, prior = self.T[fold_idx], self.W[fold_idx], self.prior[fold_idx]
         lo = prior + np.log(self.s.fit.bounds_rel[0])
         hi = prior + np.log(self.s.fit.bounds_rel[1])
@@ -236,7 +252,8 @@ class _Engine:
             U = phi[first]
             sign = np.where(U + h > hi[first], -1.0, 1.0)                          # (u, p)
             Ph = np.concatenate([U[:, None, :], U[:, None, :] + h * sign[:, None, :] * eye[None]], axis=1)
-            Fh = sim.forces_phi(Ph.reshape(-1, p)).reshape(len(U), p + 1, -1)
+            Fh = sim.forces_phi(Ph.reshape(-1, p), owner=np.repeat(own_fold[first], p + 1)
+                                ).reshape(len(U), p + 1, -1)
             F0 = Fh[:, 0]
             G = ((Fh[:, 1:] - F0[:, None, :]) / (h * sign[:, :, None])).transpose(0, 2, 1)   # (u, K, p)
             F0, G = F0[inv.ravel()], G[inv.ravel()]
@@ -258,7 +275,7 @@ class _Engine:
                     trials.append(0.5 * d)
             trial = np.clip(phi[:, None, :] + np.stack(trials, axis=1), lo[:, None], hi[:, None])   # (A, 3, p)
             nt = trial.shape[1]
-            Ft = sim.forces_phi(trial.reshape(-1, p)).reshape(A, nt, -1)
+            Ft = sim.forces_phi(trial.reshape(-1, p), owner=np.repeat(own_fold, nt)).reshape(A, nt, -1)
             lt, st = _train_loss(Ft.reshape(A * nt, -1), np.repeat(T, nt, 0), np.repeat(W, nt, 0),
                                  trial.reshape(A * nt, p), np.repeat(prior, nt, 0), ridge)
             lt, st = lt.reshape(A, nt), st.reshape(A, nt)
@@ -277,6 +294,12 @@ class _Engine:
         res["forces"][fold_idx] = F
         res["done"][fold_idx] = True
         return res
+
+
+#: CPU per grid point relative to a plain effect, for sharing the effects out over processes (measured on s3m24
+#: in a participant's screen, 2026-11-24: direction_tolerance solves 11 candidate wrenches per test on refreshes,
+#: finer_groups has 96 columns; the rest cost about the same per grid point).
+_GRID_COST = {"direction_tolerance": 3.5, "finer_groups": 2.5}
 
 
 #: The engine and effects a forked worker of :func:`single_effect_grids` inherits (set just before forking, so that
@@ -307,7 +330,7 @@ def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: 
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
-        cost = {e.name: len(e.grid(eng.s.grid_points)) * (1 + e.name.startswith("direction")) for e in effects}
+        cost = {e.name: len(e.grid(eng.s.grid_points)) * _GRID_COST.get(e.name, 1.0) for e in effects}
         groups: list[list[str]] = [[] for _ in range(workers)]
         load = [0.0] * workers
         for e in sorted(effects, key=lambda e: -cost[e.name]):      # largest first, to the least loaded group

@@ -78,6 +78,12 @@ class Simulator:
     (initially the target; :meth:`refresh` adds every candidate that is the maximum for some strength
     vector), so that an iteration solves few LPs (:meth:`forces_phi`, used by the fit); :meth:`run` and
     :meth:`forces` evaluate all J unless ``active_only``.
+
+    With :meth:`refresh_rows` each *owner* (the engine: a data set) has its own active set (``row_active``;
+    the force methods take ``owner``, the owner of each strength vector): its forces are the maximum over
+    *its* active candidates, so its fits do not depend on which other data sets are fitted with it. The LPs
+    solved are those of the union of the sets (``active``); the other owners' candidates are solved but not
+    used. Without ``owner`` the union is used (one data set, or callers that fit a fixed set of rows).
     """
 
     def __init__(self, ctx: GapContext, inst: Instance, cache=None, chunk_size: int = 65536):
@@ -91,6 +97,7 @@ class Simulator:
         self.fmul = inst.fmul
         self.active = np.zeros((self.K, J), bool)
         self.active[:, 0] = True
+        self.row_active: np.ndarray | None = None     # (problems, K, J) per-problem active sets
         self.n_lp = 0
         self.pidx, self.pnames = free_parameters(ctx.model, ctx.tie_sides)
 
@@ -98,9 +105,17 @@ class Simulator:
     def K(self) -> int:
         return self.inst.U6.shape[0]
 
-    def run(self, F: np.ndarray, return_alpha: bool = False, active_only: bool = False):
+    def _own(self, forces: np.ndarray, owner) -> np.ndarray:
+        """``forces`` (N x K x J, -1 = not solved) with the candidates outside each row's problem's active set
+        at -1 (``owner``: the problem of each row; None: the union)."""
+        if owner is None or self.row_active is None:
+            return forces
+        return np.where(self.row_active[np.asarray(owner)], forces, -1.0)
+
+    def run(self, F: np.ndarray, return_alpha: bool = False, active_only: bool = False, owner=None):
         """Forces (N x K), status of the best candidate direction (N x K), its index j (N x K), and the
-        column activations there (N x K x m') when ``return_alpha``."""
+        column activations there (N x K x m') when ``return_alpha``. ``owner``: see the class docstring
+        (with ``active_only``)."""
         F = np.atleast_2d(np.asarray(F, float))
         Fa = self.inst.strengths(F)
         N, K, J = len(F), self.K, self.inst.J
@@ -116,6 +131,8 @@ class Simulator:
         status[:, sel] = status_s
         w = w.reshape(N, K, J)
         forces = np.where(w >= 0, w * self.fmul[None], -1.0)
+        if active_only and J > 1:
+            forces = self._own(forces, owner)
         j = forces.argmax(axis=2)
         f = np.maximum(np.take_along_axis(forces, j[..., None], 2)[..., 0], 0.0)
         st = np.take_along_axis(status.reshape(N, K, J), j[..., None], 2)[..., 0]
@@ -141,6 +158,28 @@ class Simulator:
             self.active[k, np.unique(j[:, k])] = True
         return bool(self.active.sum() > before)
 
+    def refresh_rows(self, F: np.ndarray, owner: np.ndarray) -> np.ndarray:
+        """Per-owner :meth:`refresh`: the candidates that are maximal at ``F[i]`` join the active set of owner
+        ``owner[i]`` (a new owner's set starts with the target). Returns, per row of ``F``, whether its
+        owner's set grew."""
+        owner = np.asarray(owner, dtype=np.int64)
+        if self.inst.J == 1:
+            return np.zeros(len(owner), bool)
+        f, _, j, _ = self.run(F)
+        self._last_all = (np.array(F, float, copy=True), f)
+        n = int(owner.max()) + 1 if owner.size else 0
+        old = self.row_active
+        if old is None or old.shape[0] < n:
+            ra = np.zeros((n, self.K, self.inst.J), bool)
+            ra[:, :, 0] = True
+            if old is not None:
+                ra[:old.shape[0]] = old
+            self.row_active = ra
+        before = self.row_active[owner].sum(axis=(1, 2))
+        self.row_active[owner[:, None], np.arange(self.K)[None, :], j] = True
+        self.active |= self.row_active.any(axis=0)
+        return self.row_active[owner].sum(axis=(1, 2)) > before
+
     def forces(self, F: np.ndarray) -> np.ndarray:
         return self.run(F)[0]
 
@@ -156,12 +195,12 @@ class Simulator:
         """Model-muscle strengths for log free strengths ``phi`` (N x p)."""
         return np.exp(np.atleast_2d(phi))[:, self.pidx]
 
-    def forces_phi(self, phi: np.ndarray) -> np.ndarray:
+    def forces_phi(self, phi: np.ndarray, owner=None) -> np.ndarray:
         """Forces for log free strengths (N x p), on the active candidate set (for the fit)."""
-        return self.run(self.muscles(phi), active_only=True)[0]
+        return self.run(self.muscles(phi), active_only=True, owner=owner)[0]
 
     @_one_blas_thread
-    def forces_grad_phi(self, phi: np.ndarray, lazy: bool = False):
+    def forces_grad_phi(self, phi: np.ndarray, lazy: bool = False, owner=None):
         """Forces (N x K) and their exact derivatives d F / d phi (N x K x p) on the active candidate set.
 
         Envelope theorem on the LP (Eq. 4.1 / 5.2 in muscle forces): at an optimal vertex the multiplier
@@ -176,7 +215,7 @@ class Simulator:
         the derivative, so ``lam`` is solved for that one only. With ``lazy`` the derivatives are not
         computed here: returns the forces and a function ``rows -> (len(rows) x K x p)`` derivatives of
         those rows (the same numbers), so that a caller that keeps one of several trial points pays the
-        linear algebra for that one only.
+        linear algebra for that one only. ``owner``: see the class docstring.
         """
         phi = np.atleast_2d(np.asarray(phi, float))
         Fm = self.muscles(phi)                                   # (N, m) base-model strengths
@@ -194,6 +233,8 @@ class Simulator:
         wf[:, sel] = w_s
         fm = np.repeat(self.fmul.reshape(1, K * J), N, axis=0)
         forces = np.where(wf >= 0, wf * fm, -1.0).reshape(N, K, J)
+        if J > 1:
+            forces = self._own(forces, owner)
         j = forces.argmax(axis=2)
         f = np.maximum(np.take_along_axis(forces, j[..., None], 2)[..., 0], 0.0)
         # position of each test's maximising candidate among the solved ones (columns of w_s / alpha_s)
@@ -276,7 +317,8 @@ def _loss(F: np.ndarray, T: np.ndarray, W: np.ndarray, phi: np.ndarray, prior: n
 @_one_blas_thread
 def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarray, weights: np.ndarray,
                   phi0: np.ndarray, prior: np.ndarray, settings: FitSettings = FitSettings(),
-                  fgrad: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None) -> FitResult:
+                  fgrad: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
+                  owner: np.ndarray | None = None) -> FitResult:
     """Levenberg-Marquardt on the log free strengths of P problems at once.
 
     ``fforces(phi)`` maps (N x p) log free strengths to (N x K) predicted forces; ``targets`` (P x K)
@@ -286,7 +328,8 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
     predictions. ``fgrad(phi)`` (optional) returns forces and their exact Jacobian (N x K x p,
     :meth:`Simulator.forces_grad_phi`, called with ``lazy=True`` for the trials); then each iteration
     solves the LPs of the damping trials only (the Jacobian at the accepted trial comes from the same
-    solves) instead of ``p`` extra forward differences.
+    solves) instead of ``p`` extra forward differences. ``owner`` (P,): passed on to ``fforces`` / ``fgrad`` as the
+    problem of each strength vector (:class:`Simulator`'s per-problem active sets); None: not passed.
     """
     s = settings
     T = np.asarray(targets, float)
@@ -296,10 +339,11 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
     hi = prior + np.log(s.bounds_rel[1])
     phi = np.clip(np.asarray(phi0, float).copy(), lo, hi)
     P, p = phi.shape
+    own = {} if owner is None else {"owner": np.asarray(owner)}
     if fgrad is not None:
-        F, Jac = fgrad(phi)
+        F, Jac = fgrad(phi, **own)
     else:
-        F, Jac = fforces(phi), None
+        F, Jac = fforces(phi, **own), None
     loss, sse = _loss(F, T, W, phi, prior, s.ridge)
     mu = np.full(P, s.lambda0)
     stall = np.zeros(P, int)
@@ -319,7 +363,8 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
         else:
             hsign = np.where(ph + s.fd_step > hi[idx], -1.0, 1.0)                 # (A, p)
             Ph = ph[:, None, :] + s.fd_step * hsign[:, None, :] * eye[None]      # (A, p, p)
-            Fh = fforces(Ph.reshape(-1, p)).reshape(A, p, -1)
+            Fh = fforces(Ph.reshape(-1, p), **({} if owner is None else {"owner": np.repeat(own["owner"][idx], p)})
+                         ).reshape(A, p, -1)
             Jr = (Fh - F[idx][:, None, :]) / (s.fd_step * hsign[:, :, None]) / T[idx][:, None, :]
         Jm = Jr.transpose(0, 2, 1) * sw[idx][:, :, None]                         # (A, K, p)
         r = sw[idx] * (F[idx] / T[idx] - 1.0)
@@ -333,10 +378,13 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
             steps[:, t] = -np.linalg.solve(Hm, g[..., None])[..., 0]
         trial = np.clip(ph[:, None, :] + steps, lo[idx][:, None, :], hi[idx][:, None, :])
         if Jac is not None:
-            Ft, grad_rows = fgrad(trial.reshape(-1, p), lazy=True)
+            ot = {} if owner is None else {"owner": np.repeat(own["owner"][idx], len(mults))}
+            Ft, grad_rows = fgrad(trial.reshape(-1, p), lazy=True, **ot)
             Ft = Ft.reshape(A, len(mults), -1)
         else:
-            Ft = fforces(trial.reshape(-1, p)).reshape(A, len(mults), -1)
+            Ft = fforces(trial.reshape(-1, p), **({} if owner is None else
+                                                 {"owner": np.repeat(own["owner"][idx], len(mults))})
+                         ).reshape(A, len(mults), -1)
         lt, st = _loss(Ft, T[idx][:, None, :], W[idx][:, None, :], trial, prior[idx][:, None, :], s.ridge)
         best = lt.argmin(axis=1)
         lb = lt[np.arange(A), best]

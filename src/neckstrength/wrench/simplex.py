@@ -232,9 +232,8 @@ def _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_t
             ws = 0.0
             for j in range(m):
                 ws += wscale[j] * f[j]
-            if v + primal_tol * ws < 0.0:
-                if v + primal_tol * (_tf(AT, Binv, status, s, f, k) + ws) < 0.0:
-                    ok = False
+            if v + primal_tol * ws < 0.0 and v + primal_tol * (_tf(AT, Binv, status, s, f, k) + ws) < 0.0:
+                ok = False
             w = v
             w_basic = True
         else:
@@ -244,9 +243,9 @@ def _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_t
             for j in range(m):
                 rs += Rscale[i, j] * f[j]
                 ws += wscale[j] * f[j]
-            if abs(v) > primal_tol * (rs + absb[i] * ws):
-                if abs(v) > primal_tol * (_tf(AT, Binv, status, s, f, k) + rs + absb[i] * ws):
-                    ok = False
+            if abs(v) > primal_tol * (rs + absb[i] * ws) and \
+                    abs(v) > primal_tol * (_tf(AT, Binv, status, s, f, k) + rs + absb[i] * ws):
+                ok = False
         if not ok:
             return False, 0.0
     if gapf > 0.0 and not gap_rel * w - gapf >= 0.0:
