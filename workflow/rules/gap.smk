@@ -149,7 +149,7 @@ rule gap_benchmark:
         "logs/gap/{model}/benchmark.log",
     threads: 2   # worker processes, each diagnosing a batch of gap.benchmark.chunk cases
     resources:
-        mem_mb=8000,   # about 4 GB per worker with batches of 8 (s3m24)
+        mem_mb=8000,   # s3m24: a batch of 22 cases peaked at 1.2 GB alone; workers about 2.2 GB with batches of 8 (shared pages counted)
         runtime=120,
     conda:
         "../envs/neckstrength.yaml"
