@@ -97,7 +97,7 @@ class Simulator:
         self.fmul = inst.fmul
         self.active = np.zeros((self.K, J), bool)
         self.active[:, 0] = True
-        self.row_active: np.ndarray | None = None     # (problems, K, J) per-problem active sets
+        self.row_active: np.ndarray | None = None     # (owners, K, J) active sets per owner (data set)
         self.n_lp = 0
         self.pidx, self.pnames = free_parameters(ctx.model, ctx.tie_sides)
 
@@ -106,8 +106,8 @@ class Simulator:
         return self.inst.U6.shape[0]
 
     def _own(self, forces: np.ndarray, owner) -> np.ndarray:
-        """``forces`` (N x K x J, -1 = not solved) with the candidates outside each row's problem's active set
-        at -1 (``owner``: the problem of each row; None: the union)."""
+        """``forces`` (N x K x J, -1 = not solved) with the candidates outside each row's owner's active set
+        at -1 (``owner``: the owner of each row; None: the union)."""
         if owner is None or self.row_active is None:
             return forces
         return np.where(self.row_active[np.asarray(owner)], forces, -1.0)
@@ -329,7 +329,7 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
     :meth:`Simulator.forces_grad_phi`, called with ``lazy=True`` for the trials); then each iteration
     solves the LPs of the damping trials only (the Jacobian at the accepted trial comes from the same
     solves) instead of ``p`` extra forward differences. ``owner`` (P,): passed on to ``fforces`` / ``fgrad`` as the
-    problem of each strength vector (:class:`Simulator`'s per-problem active sets); None: not passed.
+    owner of each problem's strength vectors (:class:`Simulator`'s active sets per data set); None: not passed.
     """
     s = settings
     T = np.asarray(targets, float)
