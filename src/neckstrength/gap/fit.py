@@ -339,11 +339,18 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
     hi = prior + np.log(s.bounds_rel[1])
     phi = np.clip(np.asarray(phi0, float).copy(), lo, hi)
     P, p = phi.shape
-    own = {} if owner is None else {"owner": np.asarray(owner)}
+    owner = None if owner is None else np.asarray(owner)
+
+    def own(rows=None, times: int = 1) -> dict:
+        """The ``owner`` keyword for the strength vectors of problems ``rows`` (all), each ``times`` times."""
+        if owner is None:
+            return {}
+        return {"owner": owner if rows is None else np.repeat(owner[rows], times)}
+
     if fgrad is not None:
-        F, Jac = fgrad(phi, **own)
+        F, Jac = fgrad(phi, **own())
     else:
-        F, Jac = fforces(phi, **own), None
+        F, Jac = fforces(phi, **own()), None
     loss, sse = _loss(F, T, W, phi, prior, s.ridge)
     mu = np.full(P, s.lambda0)
     stall = np.zeros(P, int)
@@ -363,8 +370,7 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
         else:
             hsign = np.where(ph + s.fd_step > hi[idx], -1.0, 1.0)                 # (A, p)
             Ph = ph[:, None, :] + s.fd_step * hsign[:, None, :] * eye[None]      # (A, p, p)
-            Fh = fforces(Ph.reshape(-1, p), **({} if owner is None else {"owner": np.repeat(own["owner"][idx], p)})
-                         ).reshape(A, p, -1)
+            Fh = fforces(Ph.reshape(-1, p), **own(idx, p)).reshape(A, p, -1)
             Jr = (Fh - F[idx][:, None, :]) / (s.fd_step * hsign[:, :, None]) / T[idx][:, None, :]
         Jm = Jr.transpose(0, 2, 1) * sw[idx][:, :, None]                         # (A, K, p)
         r = sw[idx] * (F[idx] / T[idx] - 1.0)
@@ -378,13 +384,10 @@ def fit_strengths(fforces: Callable[[np.ndarray], np.ndarray], targets: np.ndarr
             steps[:, t] = -np.linalg.solve(Hm, g[..., None])[..., 0]
         trial = np.clip(ph[:, None, :] + steps, lo[idx][:, None, :], hi[idx][:, None, :])
         if Jac is not None:
-            ot = {} if owner is None else {"owner": np.repeat(own["owner"][idx], len(mults))}
-            Ft, grad_rows = fgrad(trial.reshape(-1, p), lazy=True, **ot)
+            Ft, grad_rows = fgrad(trial.reshape(-1, p), lazy=True, **own(idx, len(mults)))
             Ft = Ft.reshape(A, len(mults), -1)
         else:
-            Ft = fforces(trial.reshape(-1, p), **({} if owner is None else
-                                                 {"owner": np.repeat(own["owner"][idx], len(mults))})
-                         ).reshape(A, len(mults), -1)
+            Ft = fforces(trial.reshape(-1, p), **own(idx, len(mults))).reshape(A, len(mults), -1)
         lt, st = _loss(Ft, T[idx][:, None, :], W[idx][:, None, :], trial, prior[idx][:, None, :], s.ridge)
         best = lt.argmin(axis=1)
         lb = lt[np.arange(A), best]
