@@ -988,9 +988,9 @@ class DirectionSolver:
             m = self.m
             col = bb.status[:m]
             P = np.diag(np.where(col == _UPPER, self.ub, self.lb)).astype(float)
-            for k, j in enumerate(bb.basic):
-                if j < m:
-                    P[j] = bb.T[k]
+            basic = np.asarray(bb.basic)
+            k = np.flatnonzero(basic < m)
+            P[basic[k]] = bb.T[k]
             bb.P = P
         return bb.P
 
@@ -1003,7 +1003,7 @@ class DirectionSolver:
             return bb.pad[1]
         n, m = self.n, self.m
         if self._slots is None or self._nslots == self._slots[0].shape[0]:
-            cap = 64 if self._slots is None else 2 * self._slots[0].shape[0]
+            cap = 8 if self._slots is None else 2 * self._slots[0].shape[0]
             new = (np.zeros((cap, 2 * n + 3, m)), np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=np.bool_),
                    np.zeros((cap, m, m)), np.zeros((cap, m), dtype=np.bool_))
             if self._slots is not None:
