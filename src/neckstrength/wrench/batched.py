@@ -997,27 +997,33 @@ class DirectionSolver:
     def _slot(self, bb: _Basis) -> int:
         """``bb``'s slot in the solver's packed arrays for the compiled checks (filled once per basis): the
         checks and the map to ``w`` (``CW``, padded to ``2 n + 3`` rows, the map to ``w`` in row ``q``),
-        ``q``, whether ``w`` is basic, and the activation map ``x = P f`` (``P``'s basic rows; the other
-        rows are ``s_j e_j``)."""
+        ``q``, whether ``w`` is basic, and the activation map ``x = P f`` of :meth:`_alpha_map` as the basis's
+        ``T`` (n x m), the row of ``T`` of each basic column (-1: not basic) and each column's bound ``s_j``
+        (``x_j = s_j f_j`` off the basis), so that no m x m matrix is built or copied per basis."""
         if bb.pad is not None and bb.pad[0] == self._slot_gen:
             return bb.pad[1]
         n, m = self.n, self.m
         if self._slots is None or self._nslots == self._slots[0].shape[0]:
             cap = 8 if self._slots is None else 2 * self._slots[0].shape[0]
             new = (np.zeros((cap, 2 * n + 3, m)), np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=np.bool_),
-                   np.zeros((cap, m, m)), np.zeros((cap, m), dtype=np.bool_))
+                   np.zeros((cap, n, m)), np.full((cap, m), -1, dtype=np.int64), np.zeros((cap, m)))
             if self._slots is not None:
                 for x, y in zip(new, self._slots):
                     x[:self._nslots] = y[:self._nslots]
             self._slots = new
-        CW, qv, wb, P3, isb = self._slots
+        CW, qv, wb, T3, rowk, bnd = self._slots
         i = self._nslots
         self._nslots += 1
         CW[i, :bb.q + 1] = bb.CW
         qv[i] = bb.q
         wb[i] = bb.w_basic
-        P3[i] = self._alpha_map(bb)
-        isb[i] = bb.status[:m] == _BASIC
+        # the activation map x = P f of _alpha_map without the m x m matrix: basic columns from T's rows
+        T3[i] = bb.T
+        basic = np.asarray(bb.basic)
+        k = np.flatnonzero(basic < m)
+        rowk[i] = -1
+        rowk[i, basic[k]] = k
+        bnd[i] = np.where(bb.status[:m] == _UPPER, self.ub, self.lb)
         bb.pad = (self._slot_gen, i)
         return i
 
@@ -1032,12 +1038,12 @@ class DirectionSolver:
         gen = self._slot_gen
         slot = np.array([bb.pad[1] if bb.pad is not None and bb.pad[0] == gen else self._slot(bb)
                          for bb in map(bases.__getitem__, uniq.tolist())], dtype=np.int64)
-        CW3, qv, wb, P3, isb = self._slots
+        CW3, qv, wb, T3, rowk, bnd = self._slots
         R = rows.size
         ok = np.empty(R, dtype=np.bool_)
         ww = np.empty(R)
         aa = np.empty((R if want else 1, self.m))
-        _simplex.check_rows(F, rows.astype(np.int64), slot[pos[lab]], CW3, qv, wb, P3, isb,
+        _simplex.check_rows(F, rows.astype(np.int64), slot[pos[lab]], CW3, qv, wb, T3, rowk, bnd,
                             self.lb, self.ub, want, ok, ww, aa)
         return ok, ww, aa
 

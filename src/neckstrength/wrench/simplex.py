@@ -491,14 +491,15 @@ def solve_rows(A, lb, ub, Acol1, wscale, Rscale, absb, F, rows, start, SB, SS, S
 
 
 @njit(cache=True, nogil=True, fastmath=_FM)
-def check_rows(F, rows, label, CW3, qv, wbasic, P3, isb, lb, ub, want_alpha, out_ok, out_w, out_alpha):
+def check_rows(F, rows, label, CW3, qv, wbasic, T3, rowk, bnd, lb, ub, want_alpha, out_ok, out_w, out_alpha):
     """The cached-basis test of ``DirectionSolver._try`` for many rows at once, each against its own basis.
 
     Row ``rows[t]`` of ``F`` is checked against basis ``label[t]``: ``CW3[b, :qv[b]] @ f >= 0``
     (primal feasibility with the tolerances folded in); where it holds, ``out_w[t] = max(CW3[b, qv[b]] @ f,
     0)`` (0 if ``w`` is not basic) and, with ``want_alpha``, the activations of the basic solution as
     ``DirectionSolver._alpha`` computes them (``x = P f``; ``x_j / f_j``, ``lb_j`` where ``f_j = 0``,
-    clipped to the bounds; ``isb[b, j]``: row ``j`` of ``P3[b]`` is a basic row, else ``P3[b, j, j] f_j``).
+    clipped to the bounds): ``x_j = T3[b, k] . f`` where column ``j`` is the ``k``-th basic variable
+    (``rowk[b, j] = k``), else ``x_j = bnd[b, j] f_j`` (``bnd``: the column's bound at this basis).
     """
     m = F.shape[1]
     for t in range(rows.shape[0]):
@@ -526,12 +527,13 @@ def check_rows(F, rows, label, CW3, qv, wbasic, P3, isb, lb, ub, want_alpha, out
         if want_alpha:
             for j in range(m):
                 fj = F[r, j]
-                if isb[b, j]:
+                k = rowk[b, j]
+                if k >= 0:
                     x = 0.0
                     for i in range(m):
-                        x += P3[b, j, i] * F[r, i]
+                        x += T3[b, k, i] * F[r, i]
                 else:
-                    x = P3[b, j, j] * fj
+                    x = bnd[b, j] * fj
                 if fj > 0.0:
                     a = x / fj
                 else:
