@@ -39,6 +39,7 @@ candidates), :class:`DirectionSolver` (one direction and bound vector).
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import hashlib
 import threading
@@ -664,8 +665,21 @@ class DirectionSolver:
         # group equal bases by a hash of the row (a collision only changes which bases are tried;
         # every basis is built from an actual row and verified)
         h = keyarr @ _HASH_WEIGHTS[:keyarr.shape[1]]
-        _, first, counts = np.unique(h, return_index=True, return_counts=True)
-        order = np.argsort(-counts, kind="stable")
+        if h.size > 64:
+            _, first, counts = np.unique(h, return_index=True, return_counts=True)
+            order = np.argsort(-counts, kind="stable")
+        else:
+            # the same groups and order without numpy's per-call overhead (most calls have a few rows):
+            # hashes ascending, each with its first row and count; then by count, stable
+            grp: dict[int, list[int]] = {}
+            for i, v in enumerate(h.tolist()):
+                g = grp.get(v)
+                if g is None:
+                    grp[v] = [i, 1]
+                else:
+                    g[1] += 1
+            first, counts = zip(*(grp[v] for v in sorted(grp)))
+            order = sorted(range(len(counts)), key=lambda u: -counts[u])
         learned = 0
         new = []
         min_rows = max(SIMPLEX_LEARN_MIN_ROWS, basic.shape[0] / SIMPLEX_LEARN_SHARE)
@@ -1032,18 +1046,28 @@ class DirectionSolver:
         if self._nslots + len(bases) > 4 * self.max_bases:      # evicted bases' slots: start afresh
             self._slots, self._nslots, self._slot_gen = None, 0, self._slot_gen + 1
         lab = np.asarray(lab, dtype=np.int64)
-        uniq = np.flatnonzero(np.bincount(lab, minlength=len(bases)))   # slots of the bases these rows use only
-        pos = np.empty(len(bases), dtype=np.int64)
-        pos[uniq] = np.arange(uniq.size)
         gen = self._slot_gen
-        slot = np.array([bb.pad[1] if bb.pad is not None and bb.pad[0] == gen else self._slot(bb)
-                         for bb in map(bases.__getitem__, uniq.tolist())], dtype=np.int64)
+        if lab.size <= 64:
+            # few rows (most calls): the same slots, looked up in Python without numpy's per-call overhead
+            labl = lab.tolist()
+            memo = {}
+            for b in sorted(set(labl)):                                  # slots of the bases these rows use only
+                bb = bases[b]
+                memo[b] = bb.pad[1] if bb.pad is not None and bb.pad[0] == gen else self._slot(bb)
+            slot_of_row = np.array([memo[b] for b in labl], dtype=np.int64)
+        else:
+            uniq = np.flatnonzero(np.bincount(lab, minlength=len(bases)))   # slots of the bases these rows use only
+            pos = np.empty(len(bases), dtype=np.int64)
+            pos[uniq] = np.arange(uniq.size)
+            slot = np.array([bb.pad[1] if bb.pad is not None and bb.pad[0] == gen else self._slot(bb)
+                             for bb in map(bases.__getitem__, uniq.tolist())], dtype=np.int64)
+            slot_of_row = slot[pos[lab]]
         CW3, qv, wb, T3, rowk, bnd = self._slots
         R = rows.size
         ok = np.empty(R, dtype=np.bool_)
         ww = np.empty(R)
         aa = np.empty((R if want else 1, self.m))
-        _simplex.check_rows(F, rows.astype(np.int64), slot[pos[lab]], CW3, qv, wb, T3, rowk, bnd,
+        _simplex.check_rows(F, rows.astype(np.int64), slot_of_row, CW3, qv, wb, T3, rowk, bnd,
                             self.lb, self.ub, want, ok, ww, aa)
         return ok, ww, aa
 
@@ -1056,9 +1080,14 @@ class DirectionSolver:
             alpha_done[g] = True
         src[g] = offset + lab
         open_[g] = False
-        counts = np.bincount(lab, minlength=len(bases))
-        nz = np.flatnonzero(counts)
-        for bi, c in zip(nz.tolist(), counts[nz].tolist()):
+        if len(lab) <= 64:
+            counts = collections.Counter(np.asarray(lab).tolist())
+            pairs = sorted(counts.items())
+        else:
+            cnt = np.bincount(lab, minlength=len(bases))
+            nz = np.flatnonzero(cnt)
+            pairs = zip(nz.tolist(), cnt[nz].tolist())
+        for bi, c in pairs:
             bb = bases[bi]
             bb.hits += c
             bb.total += c
