@@ -32,7 +32,7 @@ def _cmd_directions(args) -> int:
     from neckstrength.io import atomic_write_csv
     from neckstrength.model.geometry import DIRECTIONS_HEADER
 
-    atomic_write_csv(build_directions(load_config(args.config)), args.out, DIRECTIONS_HEADER, float_format="%.6f")
+    atomic_write_csv(build_directions(load_config(args.config)), args.out, DIRECTIONS_HEADER)   # full precision
     print(f"wrote {args.out}")
     return 0
 

@@ -111,3 +111,19 @@ def test_unit_wrench_scale_converts_force():
     u, s = unit_wrench(p, np.array([1.0, 0, 0]))
     assert s == pytest.approx(np.sqrt(1 + 0.05 ** 2))
     assert np.allclose(u * s, wrench_from_force(p, np.array([1.0, 0, 0])))
+
+
+def test_written_directions_read_back_exactly(tmp_path):
+    """The pipeline's directions file holds the directions the command line builds in memory, to the last bit
+    (rounded to 6 decimals, a gap diagnosis's p-value differed between the two paths)."""
+    from neckstrength.config import build_directions, load_config
+    from neckstrength.pipeline.common import load_directions
+    from neckstrength.pipeline.model import model_directions
+
+    cfg = load_config(ROOT / "config" / "config.yaml")
+    out = tmp_path / "directions.csv"
+    model_directions(cfg, out)
+    built, read = build_directions(cfg), load_directions(out)
+    num = built.select_dtypes("number").columns
+    assert list(read.columns) == list(built.columns)
+    assert np.array_equal(read[num].to_numpy(float), built[num].to_numpy(float), equal_nan=True)
