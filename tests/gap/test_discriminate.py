@@ -2,6 +2,7 @@
 greedy design, the measurement pool, and the proposal in a diagnosis."""
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from neckstrength.config import discriminate_settings, head_from_config
@@ -98,6 +99,10 @@ def test_proposal_appears_in_a_diagnosis_when_the_leaders_are_close(cfg, ctx_p2)
     assert (last["cum_elbf_if_a"].to_numpy() >= tab[tab["step"] == 1]["cum_elbf_if_a"].to_numpy() - 1e-9).all()
     text = "\n".join(_discrimination_lines(diag))
     assert "Which tests would tell the leading candidates apart" in text and info["measurements"][0] in text
+    # the candidates' predictives in two processes: the same proposal
+    dc.attach_proposal(ctx, T, diag, head, s_on, cfg["geometry"]["plane_bands"], workers=2)
+    pd.testing.assert_frame_equal(diag.discrimination, tab)
+    assert diag.summary["discrimination"] == info
 
 
 def test_extra_trials_update_favours_the_injected_effect_and_rejects_bad_rows(cfg, ctx_p2, tmp_path):

@@ -351,15 +351,38 @@ PROPOSAL_COLUMNS = ["step", "measurement", "kind", "repeat_of", "planes", "azimu
 
 
 def candidate_predictions(ctx: GapContext, forces: np.ndarray, diag, s: DiscriminateSettings,
-                          pool: pd.DataFrame) -> tuple[list[CandidatePrediction], float, str]:
+                          pool: pd.DataFrame, workers: int = 1) -> tuple[list[CandidatePrediction], float, str]:
     """The predictives (:func:`predict_candidate`) of the top ``s.candidates`` of ``diag``'s ranking (at least 2)
-    on the measured directions followed by ``pool``, with the measurement noise and its source."""
+    on the measured directions followed by ``pool``, with the measurement noise and its source. ``workers`` > 1:
+    the candidates are shared out over that many forked processes (each candidate's predictive is computed
+    alone either way, so the answer does not depend on it)."""
     top = diag.effects.sort_values("rank").reset_index(drop=True).head(max(2, int(s.candidates)))
     sigma, src = noise_level(diag, s)
     starts = _strength_starts(ctx, diag)
-    preds = [predict_candidate(ctx, forces, r.candidate, json.loads(r.theta_values), pool, sigma, s, starts)
-             for r in top.itertuples()]
+    jobs = [(r.candidate, json.loads(r.theta_values)) for r in top.itertuples()]
+    workers = max(1, min(int(workers), len(jobs)))
+    if workers == 1:
+        return [predict_candidate(ctx, forces, c, th, pool, sigma, s, starts) for c, th in jobs], sigma, src
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    _PREDICT.update(args=(ctx, forces, jobs, pool, sigma, s, starts))
+    try:
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as ex:
+            preds = list(ex.map(_predict_in_worker, range(len(jobs))))
+    finally:
+        _PREDICT.clear()
     return preds, sigma, src
+
+
+#: The arguments of :func:`candidate_predictions` for its forked workers (set just before forking).
+_PREDICT: dict = {}
+
+
+def _predict_in_worker(i: int) -> CandidatePrediction:
+    ctx, forces, jobs, pool, sigma, s, starts = _PREDICT["args"]
+    c, th = jobs[i]
+    return predict_candidate(ctx, forces, c, th, pool, sigma, s, starts)
 
 
 def predictive_logpdf(preds: Sequence[CandidatePrediction], K: int, idx: Sequence[int], log_forces: np.ndarray,
@@ -404,8 +427,8 @@ def predictive_choice(preds: Sequence[CandidatePrediction], K: int, idx: Sequenc
 
 def propose_measurements(ctx: GapContext, forces: np.ndarray, diag, head: HeadEllipsoid,
                          s: DiscriminateSettings = DiscriminateSettings(), plane_bands: dict | None = None,
-                         pool: pd.DataFrame | None = None, preds: Sequence[CandidatePrediction] | None = None
-                         ) -> tuple[pd.DataFrame, dict]:
+                         pool: pd.DataFrame | None = None, preds: Sequence[CandidatePrediction] | None = None,
+                         workers: int = 1) -> tuple[pd.DataFrame, dict]:
     """The proposal table for one :class:`~neckstrength.gap.diagnose.DatasetDiagnosis` (empty when the best
     candidate's P(best) is not below ``s.p_best_below``) and a summary dict.
 
@@ -414,7 +437,7 @@ def propose_measurements(ctx: GapContext, forces: np.ndarray, diag, head: HeadEl
     pair's predicted forces, the expected log Bayes factor of this measurement alone if ``candidate_a``
     (``elbf_if_a``) or ``candidate_b`` (``elbf_if_b``) is true, and of all proposed measurements up to this
     step (``cum_*``). ``preds``: the candidates' predictives on ``pool`` (:func:`candidate_predictions`), if
-    already computed."""
+    already computed; ``workers``: processes that compute them."""
     ef = diag.effects.sort_values("rank").reset_index(drop=True)
     p_best = float(ef["p_best"].iloc[0])
     info = {"p_best_top": p_best, "threshold": s.p_best_below, "proposed": False}
@@ -425,7 +448,7 @@ def propose_measurements(ctx: GapContext, forces: np.ndarray, diag, head: HeadEl
         return pd.DataFrame(columns=PROPOSAL_COLUMNS), info
     pool = measurement_pool(ctx, head, s, plane_bands) if pool is None else pool
     if preds is None:
-        preds, sigma, src = candidate_predictions(ctx, forces, diag, s, pool)
+        preds, sigma, src = candidate_predictions(ctx, forces, diag, s, pool, workers)
     else:
         sigma, src = noise_level(diag, s)
     diag._predictions = (s, pool, preds, sigma, src)   # for update_with_trials (not stored with the diagnosis)
@@ -547,10 +570,12 @@ def attach_update(ctx: GapContext, forces: np.ndarray, diag, head: HeadEllipsoid
 
 
 def attach_proposal(ctx: GapContext, forces: np.ndarray, diag, head: HeadEllipsoid,
-                    s: DiscriminateSettings = DiscriminateSettings(), plane_bands: dict | None = None):
+                    s: DiscriminateSettings = DiscriminateSettings(), plane_bands: dict | None = None,
+                    workers: int = 1):
     """Add the proposal to a diagnosis: ``diag.discrimination`` (the table of :func:`propose_measurements`)
-    and ``diag.summary['discrimination']`` (its summary). Returns ``diag``."""
-    tab, info = propose_measurements(ctx, forces, diag, head, s, plane_bands)
+    and ``diag.summary['discrimination']`` (its summary). Returns ``diag``. ``workers``: processes for the
+    candidates' predictives."""
+    tab, info = propose_measurements(ctx, forces, diag, head, s, plane_bands, workers=workers)
     diag.discrimination = tab
     diag.summary["discrimination"] = info
     return diag

@@ -41,7 +41,8 @@ def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings,
                  head: HeadEllipsoid | None = None, plane_bands: Mapping | None = None, workers: int = 1,
                  extra_trials: str | Path | None = None) -> dict:
     """Diagnose one data set and write every output (keys of ``outputs``); returns the summary. ``workers``:
-    processes that screen the calibration's simulated data sets (the answer does not depend on it).
+    processes that screen the calibration's simulated data sets and compute the proposal's predictives (the
+    answer does not depend on it).
 
     With ``discriminate`` and ``head`` (the cranial ellipsoid of the geometry), the measurements that would
     best tell the leading candidates apart are proposed when they are close
@@ -57,7 +58,7 @@ def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings,
                     store=store, workers=workers)[0]
     if discriminate is not None and head is not None:
         t1 = time.time()
-        attach_proposal(ctx, data.forces, diag, head, discriminate, plane_bands)
+        attach_proposal(ctx, data.forces, diag, head, discriminate, plane_bands, workers)
         info = diag.summary["discrimination"]
         print(f"[{time.time() - t0:.0f} s] additional measurements: "
               + (f"{', '.join(info['measurements'])} to tell {', '.join(info['candidates'])} apart"
