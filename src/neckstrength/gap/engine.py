@@ -296,7 +296,8 @@ class _Engine:
         return res
 
 
-#: CPU per grid point relative to a plain effect, for sharing the effects out over processes (measured on s3m24
+#: CPU per grid point relative to a plain effect: the order in which the worker processes take the effects, the
+#: most expensive first (measured on s3m24
 #: in a participant's screen, 2026-11-24: direction_tolerance solves 11 candidate wrenches per test on refreshes,
 #: finer_groups has 96 columns; the rest cost about the same per grid point).
 _GRID_COST = {"direction_tolerance": 3.5, "finer_groups": 2.5}
@@ -322,32 +323,30 @@ def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: 
     """Fit every problem at every grid point of every effect (each grid point warm-started from the fits at
     the nearest point already done); returns the keys per candidate ('none' and each effect). ``one_step``
     > 0: the folds by :meth:`_Engine.evaluate_one_step` with that many steps. ``workers`` > 1: the effects are
-    shared out over that many processes (this one and forked workers); each effect's fits depend only on the base
-    model's and its own, so the results are the same."""
+    fitted in that many forked processes, one effect at a time each, the most expensive first (a process that
+    is done takes the next one, so the processes end together whatever the effects really cost); each effect's
+    fits depend only on the base model's and its own, so the results are the same."""
     say = say or (lambda msg: None)
     workers = max(1, min(int(workers), len(effects)))
     if workers > 1:
         import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
+        from concurrent.futures import ProcessPoolExecutor, as_completed
 
         cost = {e.name: len(e.grid(eng.s.grid_points)) * _GRID_COST.get(e.name, 1.0) for e in effects}
-        groups: list[list[str]] = [[] for _ in range(workers)]
-        load = [0.0] * workers
-        for e in sorted(effects, key=lambda e: -cost[e.name]):      # largest first, to the least loaded group
-            k = int(np.argmin(load))
-            groups[k].append(e.name)
-            load[k] += cost[e.name]
+        mine: dict[str, list[tuple]] = {}
         _FORKED.update(eng=eng, effects=list(effects))
         try:
-            with ProcessPoolExecutor(workers - 1, mp_context=mp.get_context("fork")) as ex:
-                futs = [ex.submit(_grids_in_worker, g, one_step) for g in groups[1:]]
-                mine = single_effect_grids(eng, [e for e in effects if e.name in groups[0]], say, tag, one_step)
-                for f, g in zip(futs, groups[1:]):
+            with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as ex:
+                futs = {ex.submit(_grids_in_worker, [e.name], one_step): e.name
+                        for e in sorted(effects, key=lambda e: -cost[e.name])}
+                for f in as_completed(futs):
                     keys, new, nf = f.result()
                     mine.update(keys)
                     eng.results.update(new)
                     eng.n_fits += nf
-                    say(f"{tag}effects {', '.join(g)} (in a worker process; {eng.n_fits} fits so far)")
+                    name = futs[f]
+                    say(f"{tag}effect {name}: {len(mine[name])} grid points (in a worker process; {eng.n_fits} "
+                        "fits so far)")
         finally:
             _FORKED.clear()
         return {"none": [()], **{e.name: mine[e.name] for e in effects}}
