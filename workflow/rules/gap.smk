@@ -62,7 +62,8 @@ rule gap_diagnose:
         "logs/gap/{model}/{dataset}/diagnose.log",
     threads: 2   # processes for the calibration's screen of the simulated data sets
     resources:
-        mem_mb=7000,   # peak 4.7 GB main + 0.9 GB worker measured (s3m24, calibrated, 2 threads; S005)
+        mem_mb=3000,   # peak 0.37 GB main, 0.56 GB the largest of its 3 forked workers (s3m24, calibrated, 2 threads,
+                       # S003-S007, 2026-11-24 late evening; 4.7 GB main before the solver's slots shrank)
         runtime=60,
     conda:
         "../envs/neckstrength.yaml"
