@@ -14,6 +14,7 @@ Modules, each importing downward only:
                      which (cross-validation over held-out directions, calibrated decision, ranking) and how far
 - :mod:`.discriminate` which additional measurements (repeats, further points on the head surface) would tell
                      the leading candidates apart: expected log Bayes factor per pair, greedy proposal
+- :mod:`.forked`     forked worker processes for work on unpicklable state (the fits' solvers)
 - :mod:`.store`      per-data-set results on disk, keyed by everything they depend on (resume)
 - :mod:`.benchmark`  withheld-effect generator and blind scoring (kept apart from the diagnosis)
 - :mod:`.report`     per-data-set markdown report and figures

@@ -32,6 +32,7 @@ pattern search).
 
 from __future__ import annotations
 
+import contextlib
 import json
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -53,6 +54,7 @@ from neckstrength.gap.engine import (  # noqa: F401  (BlindData, DiagnosisSettin
     single_effect_grids,
 )
 from neckstrength.gap.fit import Simulator
+from neckstrength.gap.forked import fork_background
 from neckstrength.model.geometry import PLANE_GRID, WRENCH_COMPONENTS
 from neckstrength.seeds import derive_rng
 from neckstrength.wrench.batched import single_threaded_blas
@@ -344,15 +346,13 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
     cal = None
     single_cands = ["none"] + [e.name for e in effects]
     tail_args = (eng, cand_keys, per_problem, selections, cv_pred, cand_params, cand_datasets, say)
-    pool = None
-    if workers > 1 and s.calibration.replicates > 0:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
 
-        _TAIL.update(args=tail_args)
-        pool = ProcessPoolExecutor(1, mp_context=mp.get_context("fork"))
-        fut = pool.submit(_tail_in_worker)
-    try:
+    def tail_in_worker():
+        refined = _pairs_and_refinement(*tail_args)
+        return eng.results, eng.n_fits, (per_problem, selections, cv_pred, cand_params, cand_datasets), refined
+
+    background = workers > 1 and s.calibration.replicates > 0
+    with (fork_background(tail_in_worker) if background else contextlib.nullcontext()) as fut:
         if s.calibration.replicates > 0:
             pf = [int(np.nonzero((eng.pds == i) & (eng.pfold < 0))[0][0]) for i in range(eng.nd)]
             Tm = eng.T[pf]
@@ -361,7 +361,7 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
             cal = calibrate(ctx, names, folds, Tm, eng.results[()]["forces"][pf], eng.results[()]["phi"][pf], rms,
                             effects, s, say, workers)
             say(f"calibration done ({s.calibration.replicates} noise-only replicates per data set)")
-        if pool is not None:
+        if fut is not None:
             results, n_fits, parts, refined = fut.result()
             eng.results = results
             eng.n_fits = n_fits
@@ -370,10 +370,6 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
             say(f"pairs and refinement (in a worker process; {eng.n_fits} fits so far)")
         else:
             refined = _pairs_and_refinement(*tail_args)
-    finally:
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
-            _TAIL.clear()
     # ---- per data set results
     out = []
     for i, dat in enumerate(data):
@@ -388,17 +384,6 @@ def _scores_for(eng: _Engine, keys_per_problem: list[list[tuple]]) -> tuple[list
     """A candidate's chosen key per problem (lowest training loss) and each data set's held-out predictions."""
     chosen = _selection(eng, keys_per_problem)
     return chosen, [_cv_predictions(eng, chosen, i) for i in range(eng.nd)]
-
-
-#: The arguments of :func:`_pairs_and_refinement` for a forked worker (the engine's solvers cannot be pickled).
-_TAIL: dict = {}
-
-
-def _tail_in_worker():
-    eng, cand_keys, per_problem, selections, cv_pred, cand_params, cand_datasets, say = _TAIL["args"]
-    refined = _pairs_and_refinement(eng, cand_keys, per_problem, selections, cv_pred, cand_params, cand_datasets,
-                                    say)
-    return eng.results, eng.n_fits, (per_problem, selections, cv_pred, cand_params, cand_datasets), refined
 
 
 def _pairs_and_refinement(eng: _Engine, cand_keys, per_problem, selections, cv_pred, cand_params, cand_datasets,

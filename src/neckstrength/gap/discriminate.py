@@ -46,6 +46,7 @@ import pandas as pd
 
 from neckstrength.gap.effects import EFFECTS, GapContext, base_instance, compose, parse_label
 from neckstrength.gap.fit import FitSettings, Simulator, fit_strengths, start_point
+from neckstrength.gap.forked import fork_map
 from neckstrength.model.geometry import HeadEllipsoid, assign_planes, direction_table
 
 
@@ -363,26 +364,11 @@ def candidate_predictions(ctx: GapContext, forces: np.ndarray, diag, s: Discrimi
     workers = max(1, min(int(workers), len(jobs)))
     if workers == 1:
         return [predict_candidate(ctx, forces, c, th, pool, sigma, s, starts) for c, th in jobs], sigma, src
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-
-    _PREDICT.update(args=(ctx, forces, jobs, pool, sigma, s, starts))
-    try:
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as ex:
-            preds = list(ex.map(_predict_in_worker, range(len(jobs))))
-    finally:
-        _PREDICT.clear()
+    preds: list = [None] * len(jobs)
+    for i, pr in fork_map(lambda job: predict_candidate(ctx, forces, job[0], job[1], pool, sigma, s, starts), jobs,
+                          workers):
+        preds[i] = pr
     return preds, sigma, src
-
-
-#: The arguments of :func:`candidate_predictions` for its forked workers (set just before forking).
-_PREDICT: dict = {}
-
-
-def _predict_in_worker(i: int) -> CandidatePrediction:
-    ctx, forces, jobs, pool, sigma, s, starts = _PREDICT["args"]
-    c, th = jobs[i]
-    return predict_candidate(ctx, forces, c, th, pool, sigma, s, starts)
 
 
 def predictive_logpdf(preds: Sequence[CandidatePrediction], K: int, idx: Sequence[int], log_forces: np.ndarray,

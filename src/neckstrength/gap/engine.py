@@ -17,6 +17,7 @@ import numpy as np
 from neckstrength.estimation.discrepancy import data_discrepancy
 from neckstrength.gap.effects import Effect, GapContext, base_instance, compose
 from neckstrength.gap.fit import FitSettings, Simulator, fit_strengths, make_cache, start_point
+from neckstrength.gap.forked import fork_map
 from neckstrength.seeds import derive_rng
 
 
@@ -303,21 +304,6 @@ class _Engine:
 _GRID_COST = {"direction_tolerance": 3.5, "finer_groups": 2.5}
 
 
-#: The engine and effects a forked worker of :func:`single_effect_grids` inherits (set just before forking, so that
-#: nothing with solver state has to be pickled).
-_FORKED: dict = {}
-
-
-def _grids_in_worker(names: list[str], one_step: int):
-    """:func:`single_effect_grids` for the effects ``names`` in a forked process; returns their keys, the new
-    results and the number of fits."""
-    eng, effects = _FORKED["eng"], _FORKED["effects"]
-    before = set(eng.results)
-    n0 = eng.n_fits
-    keys = single_effect_grids(eng, [e for e in effects if e.name in names], one_step=one_step)
-    return keys, {k: v for k, v in eng.results.items() if k not in before}, eng.n_fits - n0
-
-
 def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: str = "",
                         one_step: int = 0, workers: int = 1) -> dict[str, list[tuple]]:
     """Fit every problem at every grid point of every effect (each grid point warm-started from the fits at
@@ -329,26 +315,24 @@ def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: 
     say = say or (lambda msg: None)
     workers = max(1, min(int(workers), len(effects)))
     if workers > 1:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
         cost = {e.name: len(e.grid(eng.s.grid_points)) * _GRID_COST.get(e.name, 1.0) for e in effects}
+        order = sorted(effects, key=lambda e: -cost[e.name])
+
+        def grids_of(e: Effect):
+            """In a forked process: the effect's keys, its new results and its number of fits."""
+            before = set(eng.results)
+            n0 = eng.n_fits
+            keys = single_effect_grids(eng, [e], one_step=one_step)
+            return keys, {k: v for k, v in eng.results.items() if k not in before}, eng.n_fits - n0
+
         mine: dict[str, list[tuple]] = {}
-        _FORKED.update(eng=eng, effects=list(effects))
-        try:
-            with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as ex:
-                futs = {ex.submit(_grids_in_worker, [e.name], one_step): e.name
-                        for e in sorted(effects, key=lambda e: -cost[e.name])}
-                for f in as_completed(futs):
-                    keys, new, nf = f.result()
-                    mine.update(keys)
-                    eng.results.update(new)
-                    eng.n_fits += nf
-                    name = futs[f]
-                    say(f"{tag}effect {name}: {len(mine[name])} grid points (in a worker process; {eng.n_fits} "
-                        "fits so far)")
-        finally:
-            _FORKED.clear()
+        for i, (keys, new, nf) in fork_map(grids_of, order, workers):
+            mine.update(keys)
+            eng.results.update(new)
+            eng.n_fits += nf
+            name = order[i].name
+            say(f"{tag}effect {name}: {len(mine[name])} grid points (in a worker process; {eng.n_fits} "
+                "fits so far)")
         return {"none": [()], **{e.name: mine[e.name] for e in effects}}
     cand_keys: dict[str, list[tuple]] = {"none": [()]}
     for e in effects:

@@ -164,6 +164,11 @@ SIMPLEX_LEARN_SHARE = 256
 #: The ``'zero'`` rule of :class:`~neckstrength.wrench.problem._DirectionLP`: ``w <= ZERO_REL max(1, sum f)``.
 ZERO_REL = 1e-12
 
+#: Calls with at most this many rows do their small bookkeeping (grouping the simplex's new bases, the checks'
+#: slot lookups, the hit counts) in Python: numpy's per-call overhead dominates there (most of a gap
+#: diagnosis's calls have about 15 rows). The same results either way.
+SMALL_ROWS = 64
+
 
 _LOWER = int(highspy.HighsBasisStatus.kLower)
 
@@ -665,7 +670,7 @@ class DirectionSolver:
         # group equal bases by a hash of the row (a collision only changes which bases are tried;
         # every basis is built from an actual row and verified)
         h = keyarr @ _HASH_WEIGHTS[:keyarr.shape[1]]
-        if h.size > 64:
+        if h.size > SMALL_ROWS:
             _, first, counts = np.unique(h, return_index=True, return_counts=True)
             order = np.argsort(-counts, kind="stable")
         else:
@@ -1047,7 +1052,7 @@ class DirectionSolver:
             self._slots, self._nslots, self._slot_gen = None, 0, self._slot_gen + 1
         lab = np.asarray(lab, dtype=np.int64)
         gen = self._slot_gen
-        if lab.size <= 64:
+        if lab.size <= SMALL_ROWS:
             # few rows (most calls): the same slots, looked up in Python without numpy's per-call overhead
             labl = lab.tolist()
             memo = {}
@@ -1080,7 +1085,7 @@ class DirectionSolver:
             alpha_done[g] = True
         src[g] = offset + lab
         open_[g] = False
-        if len(lab) <= 64:
+        if len(lab) <= SMALL_ROWS:
             counts = collections.Counter(np.asarray(lab).tolist())
             pairs = sorted(counts.items())
         else:
