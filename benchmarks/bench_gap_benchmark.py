@@ -13,9 +13,10 @@ and after each batch the cases done so far are scored (``score_benchmark``: per 
 and size) into ``--out``. A run stopped by ``--max-seconds`` (or interrupted) leaves a valid stratified subset;
 a rerun resumes.
 
-Run from the repository root::
+Run from the repository root (the full design on 2 cores, as timed in the README: one batch of all cases, its
+effects' fits shared out over 2 processes)::
 
-    .venv/bin/python benchmarks/bench_gap_benchmark.py --out results/gap/s3m24/benchmark_partial
+    .venv/bin/python benchmarks/bench_gap_benchmark.py --jobs 2 --out results/gap/s3m24/benchmark_partial
 """
 
 from __future__ import annotations
@@ -69,11 +70,13 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", default="config/config.yaml")
     ap.add_argument("--model", default=None, help="default: gap.benchmark.model")
-    ap.add_argument("--chunk", type=int, default=2, help="cases per stored batch (results do not depend on it)")
+    ap.add_argument("--chunk", type=int, default=None,
+                    help="cases per stored batch (default: gap.benchmark.chunk; results do not depend on it)")
     ap.add_argument("--max-seconds", type=float, default=None, help="start no new batch after this long")
     ap.add_argument("--out", required=True, help="folder for the partial score tables")
     ap.add_argument("--score-only", action="store_true", help="diagnose nothing: score the cases already stored")
-    ap.add_argument("--jobs", type=int, default=1, help="worker processes, each diagnosing one batch at a time")
+    ap.add_argument("--jobs", type=int, default=1, help="processes: several batches, one batch at a time each; one "
+                    "batch, its effects' fits shared out over them")
     a = ap.parse_args(argv)
 
     from neckstrength.config import build_directions, load_config
@@ -88,6 +91,7 @@ def main(argv=None) -> dict:
     ctx, bs, ds, rng = benchmark_setup(cfg, model, build_directions(cfg))
     cases = generate_cases(ctx, bs, rng)
     order = stratified_order(cases)
+    a.chunk = a.chunk or cfg["gap"]["benchmark"].get("chunk") or len(cases)
     store = ResultStore(Path("results/gap") / model / "benchmark" / "resume", ctx, decision_settings(ds))
     power_store = ResultStore(Path("results/gap") / model / "benchmark" / "resume", ctx, ds)
     power: dict = {}
@@ -126,8 +130,8 @@ def main(argv=None) -> dict:
     def finish(i: int, tb: float | None = None) -> None:
         nonlocal summ
         part = parts[i]
-        diags = diagnose(ctx, blind(part), decision_settings(ds), say, store=store, chunk=a.chunk)
-        power.update(benchmark_power(ctx, part, diags, ds, say, store=power_store, chunk=a.chunk))
+        diags = diagnose(ctx, blind(part), decision_settings(ds), say, store=store, chunk=a.chunk, workers=a.jobs)
+        power.update(benchmark_power(ctx, part, diags, ds, say, store=power_store, chunk=a.chunk, workers=a.jobs))
         for c, d in zip(part, diags):
             done[c.name] = d
         summ = _score(ctx, cases, done, power, ds, out, cfg, model, t0, c0)
@@ -137,7 +141,7 @@ def main(argv=None) -> dict:
             f"false alarms {summ['false_alarms']}/{summ['controls']}, detectable correct {summ['detectable_correct']}/"
             f"{summ['detectable_cases']}, effect cases correct {summ['effect_cases_correct']}/{summ['effect_cases']}")
 
-    if a.jobs > 1 and parts:
+    if a.jobs > 1 and len(parts) > 1:        # batches in worker processes; one batch: its effects shared out
         from neckstrength.gap.benchmark import diagnose_in_workers
 
         diagnose_in_workers(ctx, parts, ds, store, power_store, a.jobs, say, on_done=finish, stop=stop)

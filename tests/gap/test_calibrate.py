@@ -190,6 +190,35 @@ def test_decision_without_power_is_the_same_and_power_for_reproduces_the_power_t
     assert any(t["replicates"].sum() > 0 for t in tabs)
 
 
+def test_power_in_two_stages_names_what_the_full_screen_names(ctx_p2):
+    # power_for screens each simulated data set with its own effect first and only those that pass that effect's
+    # necessary test with every effect: the hits must be those of screening every data set with every effect, and
+    # the first stage must actually spare some (else the test shows nothing)
+    from dataclasses import replace
+
+    s = _settings(replicates=19, noise=0.01, power_sizes=(0.5, 1.0), power_replicates=3, cv="one_step")
+    data = _data(ctx_p2)
+    bare = dg.diagnose(ctx_p2, data, replace(s, calibration=replace(s.calibration, power_replicates=0)))
+    cals = [b.calibration for b in bare]
+    reg = {e.name: e for e in cb.available_effects(ctx_p2, s.effects)}
+    eff = [reg[n] for n in cals[0].effects]
+    names = [d.name for d in data]
+    phis = {i: cb._truth_phis(Simulator(ctx_p2, base_instance(ctx_p2)), c.phi_fit, np.asarray(d.forces, float),
+                              c.sigma, s.calibration, d.name, s.seed) for i, (d, c) in enumerate(zip(data, cals))}
+    sims, meta = cb._power_sets(ctx_p2, names, phis, np.array([c.f_fit for c in cals]), [c.sigma for c in cals],
+                                [eff] * len(data), s.calibration, s.seed)
+    ok = [m for m in meta if m[1] != "skip"]
+    folds = np.array([cb.direction_folds(ctx_p2.K, s.folds, cb.derive_rng(s.seed, f"gap/folds/{n}")) for n in names])
+    said = []
+    hits = cb._power_hits(ctx_p2, sims, [(m[0], m[2]) for m in ok], folds, cals, reg, eff, s, said.append, 1)
+    full = cb.screen(ctx_p2, sims, folds[[m[0] for m in ok]], eff, s).gap
+    ref = np.array([cb._hit(cals[m[0]], full[j], m[2], s.calibration.alpha) for j, m in enumerate(ok)])
+    assert np.array_equal(hits, ref)
+    assert 0 < ref.sum() < len(ref)
+    n2 = int(said[0].split("; ")[1].split()[0])                  # "...; N pass its test and are screened ..."
+    assert ref.sum() <= n2 < len(sims)
+
+
 def test_benchmark_power_only_for_single_effect_cases_and_resumes(ctx_p2, tmp_path, monkeypatch):
     from neckstrength.gap import benchmark as bm
 
@@ -275,7 +304,8 @@ def test_screen_gives_a_data_set_the_same_scores_alone_in_a_batch_and_in_any_ord
     # refit: to rounding; one_step: the all-direction fit's Levenberg-Marquardt path can differ by about 1e-6 in
     # log strength where the batch makes the solver return another optimal vertex (a different envelope gradient
     # at a kink), and the fold step inherits that (its forward differences are continuous in the start point)
-    tol = {"rtol": 1e-8, "atol": 1e-10} if cv == "refit" else {"rtol": 0.0, "atol": 1e-5}
+    # (refit: 1.3e-8 relative seen on a CPU with AVX-512, whose fused multiply-adds round differently)
+    tol = {"rtol": 1e-7, "atol": 1e-9} if cv == "refit" else {"rtol": 0.0, "atol": 1e-5}
     assert np.allclose(alone[0], batch[1], **tol)
     assert np.allclose(rev, batch, **tol)
     assert np.all(np.isfinite(batch)) and np.ptp(batch[:, 0]) > 0
@@ -294,10 +324,14 @@ def test_benchmark_in_worker_processes_gives_the_same_answers(ctx_p2, tmp_path):
     pst = ResultStore(tmp_path, ctx_p2, s)
     two = bm.run_benchmark(ctx_p2, bs, s, np.random.default_rng(6), store=st, power_store=pst, chunk=1, workers=2)
     assert len(list(tmp_path.glob("*.pkl"))) == len(one[0]) + sum(len(c.injected) == 1 for c in one[0])
-    for a, b in zip(one[1], two[1]):
-        assert a.summary["chosen"] == b.summary["chosen"] and a.summary["p_value"] == b.summary["p_value"]
-        assert np.allclose(a.calibration.gap_obs, b.calibration.gap_obs, rtol=1e-9, atol=1e-12)
+    # one batch with workers: the effects' fits (and the power's two stages) shared out over forked processes
+    three = bm.run_benchmark(ctx_p2, bs, s, np.random.default_rng(6), workers=2)
+    for a, b, c in zip(one[1], two[1], three[1]):
+        for x in (b, c):
+            assert a.summary["chosen"] == x.summary["chosen"] and a.summary["p_value"] == x.summary["p_value"]
+            assert np.allclose(a.calibration.gap_obs, x.calibration.gap_obs, rtol=1e-9, atol=1e-12)
     pd.testing.assert_frame_equal(one[2]["per_case"], two[2]["per_case"], rtol=1e-6)
+    pd.testing.assert_frame_equal(one[2]["per_case"], three[2]["per_case"], rtol=1e-6)
 
 
 def test_screen_in_worker_processes_gives_the_same_scores(ctx_p2):

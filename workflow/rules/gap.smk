@@ -148,9 +148,9 @@ rule gap_benchmark:
             "gap.tie_sides", "geometry.head.centre", "model", "seed"),
     log:
         "logs/gap/{model}/benchmark.log",
-    threads: 2   # worker processes, each diagnosing a batch of gap.benchmark.chunk cases
+    threads: 2   # processes: one batch (gap.benchmark.chunk >= cases) shares out its effects' fits; several batches, one each
     resources:
-        mem_mb=8000,   # s3m24: a batch of 22 cases peaked at 1.2 GB alone; workers about 2.2 GB with batches of 8 (shared pages counted)
+        mem_mb=4000,   # s3m24, 86 cases in one batch: the largest process peaked at 1.3 GB
         runtime=120,
     conda:
         "../envs/neckstrength.yaml"

@@ -251,15 +251,16 @@ def accuracy_table(pc: pd.DataFrame) -> pd.DataFrame:
 
 
 def benchmark_power(ctx: GapContext, cases: Sequence[Case], diags: Sequence[DatasetDiagnosis],
-                    ds: DiagnosisSettings, progress=None, store=None, chunk: int | None = None
-                    ) -> dict[str, pd.DataFrame]:
+                    ds: DiagnosisSettings, progress=None, store=None, chunk: int | None = None,
+                    workers: int = 1) -> dict[str, pd.DataFrame]:
     """Power summary of each single-effect case for its injected effect only (scoring side: the case's label
     chooses which effect's power is simulated; the diagnosis's decision, made blind, does not use the power).
 
     The same simulated data sets, screen and decision as the diagnosis's own power table would use for that
     effect (:func:`neckstrength.gap.calibrate.power_for` with the case's calibration), i.e. 8 instead of
     ``9 effects x 8`` simulated data sets per case. ``store``/``chunk`` as in
-    :func:`neckstrength.gap.diagnose.diagnose` (stored as each batch finishes; an interrupted run resumes)."""
+    :func:`neckstrength.gap.diagnose.diagnose` (stored as each batch finishes; an interrupted run resumes);
+    ``workers``: processes sharing out the effects of the screen (the answers do not depend on it)."""
     say = progress or (lambda msg: None)
     by_name = {d.name: d for d in diags}
     todo = [c for c in cases if len(c.injected) == 1 and by_name[c.name].calibration is not None
@@ -278,7 +279,7 @@ def benchmark_power(ctx: GapContext, cases: Sequence[Case], diags: Sequence[Data
             say(f"power of the injected effect: cases {a + 1}-{a + len(part)} of {len(rest)} "
                 f"({len(todo) - len(rest)} resumed)")
             tabs = power_for(ctx, blind(part), [by_name[c.name].calibration for c in part],
-                             [[c.label] for c in part], ds, say)
+                             [[c.label] for c in part], ds, say, workers)
             for c, t in zip(part, tabs):
                 out[c.name] = power_summary(t, ds.calibration.power_target)
                 if store is not None:
@@ -343,17 +344,20 @@ def run_benchmark(ctx: GapContext, bs: BenchmarkSettings, ds: DiagnosisSettings,
 
     The diagnoses are made without their power tables (``power_replicates`` 0: the same decision, see
     :func:`neckstrength.gap.calibrate.calibrate`); the detectability of each case's injected effect comes from
-    :func:`benchmark_power` (stored in ``power_store``). ``workers`` > 1 (with both stores): batches of ``chunk``
-    cases in that many processes (:func:`diagnose_in_workers`). Returns (cases, diagnoses, score tables)."""
+    :func:`benchmark_power` (stored in ``power_store``). ``workers`` > 1: with both stores and several batches of
+    ``chunk`` cases, the batches in that many processes (:func:`diagnose_in_workers`); with one batch, the
+    effects' fits of that batch shared out over that many processes (larger fit batches cost less per case).
+    Returns (cases, diagnoses, score tables)."""
     cases = generate_cases(ctx, bs, rng)
     if progress:
         progress(f"benchmark: {len(cases)} cases generated (labels withheld from the diagnosis)")
-    if workers > 1 and store is not None and power_store is not None:
-        n = max(1, int(chunk)) if chunk else max(1, -(-len(cases) // workers))
+    n = max(1, int(chunk)) if chunk else max(1, -(-len(cases) // workers))
+    if workers > 1 and store is not None and power_store is not None and n < len(cases):
         diagnose_in_workers(ctx, [cases[a:a + n] for a in range(0, len(cases), n)], ds, store, power_store,
                             workers, progress)
-    diags = diagnose(ctx, blind(cases), decision_settings(ds), progress, store=store, chunk=chunk)
-    power = benchmark_power(ctx, cases, diags, ds, progress, store=power_store, chunk=chunk)
+    # one batch (or the batches already stored by the workers): here, the effects shared out over ``workers``
+    diags = diagnose(ctx, blind(cases), decision_settings(ds), progress, store=store, chunk=chunk, workers=workers)
+    power = benchmark_power(ctx, cases, diags, ds, progress, store=power_store, chunk=chunk, workers=workers)
     return cases, diags, score_benchmark(ctx, cases, diags, ds.epsilon, power)
 
 
