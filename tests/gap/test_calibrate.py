@@ -219,6 +219,37 @@ def test_power_in_two_stages_names_what_the_full_screen_names(ctx_p2):
     assert ref.sum() <= n2 < len(sims)
 
 
+def test_an_interrupted_batch_resumes_from_its_effects_checkpoints(ctx_p2, tmp_path, monkeypatch):
+    # within a batch each effect's grid fits (diagnosis proper and the calibration's screen) are stored as they
+    # finish: a rerun after an interruption takes them from there, gets the same answer and removes them at the end
+    from neckstrength.gap import engine as en
+    from neckstrength.gap import store as st
+
+    s = _settings(replicates=4, noise=0.01, cv="one_step")
+    data = _data(ctx_p2)
+    ref = dg.diagnose(ctx_p2, data, s)
+    store = ResultStore(tmp_path, ctx_p2, s)
+    with monkeypatch.context() as m:                    # "interrupted" after the fits: nothing stored, nothing cleared
+        m.setattr(ResultStore, "put", lambda self, d, r: None)
+        m.setattr(st.Checkpoints, "clear", lambda self: None)
+        dg.diagnose(ctx_p2, data, s, store=store)
+    kept = list((tmp_path / "checkpoints").rglob("*.pkl"))
+    assert len(kept) == 2 * len(s.effects)              # the diagnosis proper's and the screen's, one per effect
+
+    def boom(*a, **k):
+        raise AssertionError("grid fitted again")
+
+    monkeypatch.setattr(en, "_grids", boom)
+    said = []
+    again = dg.diagnose(ctx_p2, data, s, said.append, store=store)
+    assert sum("resumed from" in m for m in said) == 2 * len(s.effects)
+    for a, b in zip(ref, again):
+        assert a.summary["chosen"] == b.summary["chosen"] and a.summary["p_value"] == b.summary["p_value"]
+        pd.testing.assert_frame_equal(a.effects, b.effects)
+    assert not (tmp_path / "checkpoints").exists() or not list((tmp_path / "checkpoints").rglob("*.pkl"))
+    assert len(list(tmp_path.glob("*.pkl"))) == len(data)
+
+
 def test_benchmark_power_only_for_single_effect_cases_and_resumes(ctx_p2, tmp_path, monkeypatch):
     from neckstrength.gap import benchmark as bm
 

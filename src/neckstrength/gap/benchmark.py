@@ -26,6 +26,7 @@ from neckstrength.gap.calibrate import power_for, power_summary
 from neckstrength.gap.diagnose import BlindData, DatasetDiagnosis, DiagnosisSettings, diagnose
 from neckstrength.gap.effects import EFFECTS, GapContext, available_effects, compose, effect_label, parse_label
 from neckstrength.gap.fit import Simulator, make_cache
+from neckstrength.gap.store import batch_checkpoints
 from neckstrength.wrench.batched import single_threaded_blas
 
 
@@ -278,12 +279,15 @@ def benchmark_power(ctx: GapContext, cases: Sequence[Case], diags: Sequence[Data
             part = rest[a:a + n]
             say(f"power of the injected effect: cases {a + 1}-{a + len(part)} of {len(rest)} "
                 f"({len(todo) - len(rest)} resumed)")
+            ckp = batch_checkpoints(store, [key[c.name] for c in part])
             tabs = power_for(ctx, blind(part), [by_name[c.name].calibration for c in part],
-                             [[c.label] for c in part], ds, say, workers)
+                             [[c.label] for c in part], ds, say, workers, ckp)
             for c, t in zip(part, tabs):
                 out[c.name] = power_summary(t, ds.calibration.power_target)
                 if store is not None:
                     store.put(key[c.name], out[c.name])
+            if ckp is not None:
+                ckp.clear()
     return out
 
 

@@ -102,12 +102,13 @@ def screen_scores(ctx: GapContext, T: np.ndarray, preds: dict[str, np.ndarray], 
 
 
 def screen(ctx: GapContext, data: list[BlindData], folds: np.ndarray, effects: list[Effect],
-           s: DiagnosisSettings, say=None, workers: int = 1) -> Screen:
+           s: DiagnosisSettings, say=None, workers: int = 1, checkpoints=None) -> Screen:
     """Base model and every single effect on its grid, cross-validated on ``folds`` (data sets x K), all data
     sets fitted alike (the diagnosis's start point, the calibration's ``starts`` and ``max_iter``).
     ``workers`` > 1: the effects are shared out over that many processes (this one and forked workers), each
     screening every data set (:func:`single_effect_grids`): larger batches cost less per data set than the
-    data sets split into groups (before 2026-11-24 evening); a data set's scores do not depend on either."""
+    data sets split into groups (before 2026-11-24 evening); a data set's scores do not depend on either.
+    ``checkpoints``: each effect's fits stored as they finish (:func:`single_effect_grids`)."""
     cs = s.calibration
     s2 = DiagnosisSettings(**{**s.__dict__, "starts": cs.starts,
                               "fit": FitSettings(**{**s.fit.__dict__, "max_iter": cs.max_iter})})
@@ -117,7 +118,8 @@ def screen(ctx: GapContext, data: list[BlindData], folds: np.ndarray, effects: l
         eng.evaluate_one_step((), eng.prior, one)
     else:
         eng.evaluate((), eng.prior)
-    keys = single_effect_grids(eng, effects, say, tag="  simulated data: ", one_step=one, workers=workers)
+    keys = single_effect_grids(eng, effects, say, tag="  simulated data: ", one_step=one, workers=workers,
+                               checkpoints=checkpoints)
     preds = {c: cv_predictions(eng, k) for c, k in keys.items()}
     T = np.array([d.forces for d in data], float)
     return screen_scores(ctx, T, preds, s.epsilon, plane_indicators(ctx.directions), [d.name for d in data])
@@ -275,7 +277,7 @@ def _power_table(cal: Calibration, i: int, effects: list[Effect], cs: Calibratio
 
 def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarray, f_fit: np.ndarray,
               phi_fit: np.ndarray, rms_obs: np.ndarray, effects: list[Effect], s: DiagnosisSettings,
-              say=None, workers: int = 1) -> list[Calibration]:
+              say=None, workers: int = 1, checkpoints=None) -> list[Calibration]:
     """Null and power replicates for every data set (``names``, fold splits, measured forces ``T``, base fit
     forces ``f_fit`` and log strengths ``phi_fit``, held-out RMS log residuals per candidate ``rms_obs``).
     With ``power_replicates`` 0 there is no power table (the decision is the same: every data set is screened
@@ -309,7 +311,7 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
         + ", ".join(f"{n} {sg[0]:.3f} ({sg[1]})" for n, sg in zip(names, sig)))
     if sims:
         idx = [m[0] for m in meta_ok]
-        sc = screen(ctx, sims, folds[idx], effects, s, say, workers)
+        sc = screen(ctx, sims, folds[idx], effects, s, say, workers, checkpoints)
     out = []
     for i, n in enumerate(names):
         rows = [j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "null"]
@@ -329,13 +331,14 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
 
 
 def power_for(ctx: GapContext, data: list[BlindData], cals: list[Calibration], effects_of: list[list[str]],
-              s: DiagnosisSettings, say=None, workers: int = 1) -> list[pd.DataFrame]:
+              s: DiagnosisSettings, say=None, workers: int = 1, checkpoints=None) -> list[pd.DataFrame]:
     """The power table of each data set for the effects ``effects_of[i]`` only, with the calibration ``cals[i]``
     of its diagnosis (made with ``power_replicates`` 0 and otherwise the settings ``s``): the same simulated
     data sets and decision as :func:`calibrate` with the power, so equal to that table's rows of these effects;
     screened in two stages (:func:`_power_hits`: a data set that fails its own effect's necessary test is not
     screened with the other effects). (The withheld-effect benchmark needs the power of the injected effect
-    only.) ``workers``: processes sharing out the screens (the answers do not depend on it)."""
+    only.) ``workers``: processes sharing out the screens (the answers do not depend on it); ``checkpoints``:
+    the screens' effects stored as they finish."""
     cs = s.calibration
     names = [d.name for d in data]
     reg = {e.name: e for e in available_effects(ctx, s.effects)}
@@ -351,13 +354,13 @@ def power_for(ctx: GapContext, data: list[BlindData], cals: list[Calibration], e
     if say:
         say(f"power: {len(sims)} simulated data sets with an effect for {len(names)} data set(s)")
     eff = [reg[n] for n in cals[0].effects]
-    hits = _power_hits(ctx, sims, [(m[0], m[2]) for m in ok], folds, cals, reg, eff, s, say, workers)
+    hits = _power_hits(ctx, sims, [(m[0], m[2]) for m in ok], folds, cals, reg, eff, s, say, workers, checkpoints)
     return [_power_table(c, i, eff_of[i], cs, meta, hits=hits) for i, c in enumerate(cals)]
 
 
 def _power_hits(ctx: GapContext, sims: list[BlindData], owner: list[tuple[int, str]], folds: np.ndarray,
                 cals: list[Calibration], reg: dict[str, Effect], eff: list[Effect], s: DiagnosisSettings, say,
-                workers: int) -> np.ndarray:
+                workers: int, checkpoints=None) -> np.ndarray:
     """Whether the decision names the simulated data set's own effect, for each of ``sims`` (``owner``: its data
     set and effect), in two stages that give the same answers as screening every data set with every effect.
 
@@ -382,7 +385,8 @@ def _power_hits(ctx: GapContext, sims: list[BlindData], owner: list[tuple[int, s
 
     def stage1(e: str) -> np.ndarray:
         js = groups[e]
-        return screen(ctx, [sims[j] for j in js], folds[[owner[j][0] for j in js]], [reg[e]], s).gap
+        return screen(ctx, [sims[j] for j in js], folds[[owner[j][0] for j in js]], [reg[e]], s,
+                      checkpoints=checkpoints).gap
 
     if workers > 1 and len(order) > 1:
         gap1 = {order[k]: g for k, g in fork_map(stage1, order, workers)}
@@ -403,7 +407,7 @@ def _power_hits(ctx: GapContext, sims: list[BlindData], owner: list[tuple[int, s
             "and are screened with every effect")
     if second:
         gap2 = screen(ctx, [sims[j] for j in second], folds[[owner[j][0] for j in second]], eff, s, say,
-                      workers).gap
+                      workers, checkpoints).gap
         for t, j in enumerate(second):
             hits[j] = _hit(cals[owner[j][0]], gap2[t], owner[j][1], cs.alpha)
     return hits

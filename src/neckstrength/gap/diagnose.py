@@ -55,6 +55,7 @@ from neckstrength.gap.engine import (  # noqa: F401  (BlindData, DiagnosisSettin
 )
 from neckstrength.gap.fit import Simulator
 from neckstrength.gap.forked import fork_background
+from neckstrength.gap.store import batch_checkpoints
 from neckstrength.model.geometry import PLANE_GRID, WRENCH_COMPONENTS
 from neckstrength.seeds import derive_rng
 from neckstrength.wrench.batched import single_threaded_blas
@@ -290,7 +291,9 @@ def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSett
     replicates) derives from ``settings.seed`` and the data set's name, so a data set gets the same answer alone
     or in a batch, in any order, by any path. ``store`` (:class:`neckstrength.gap.store.ResultStore`): results
     found there are reused, new ones written as each batch of ``chunk`` data sets (default: all) finishes, so
-    an interrupted run resumes. ``workers``: processes that fit the effects' grids and screen the calibration's
+    an interrupted run resumes; within a batch, each effect's fits (of the diagnosis proper and of the
+    calibration's screen) are kept in the store's ``checkpoints/`` folder until the batch is stored, so an
+    interrupted batch resumes by effect. ``workers``: processes that fit the effects' grids and screen the calibration's
     simulated data sets (the answers do not depend on it).
     """
     say = progress or (lambda msg: None)
@@ -309,15 +312,18 @@ def diagnose(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSett
             part = todo[a:a + n]
             if len(todo) > n:
                 say(f"batch {a // n + 1} of {(len(todo) + n - 1) // n}: {', '.join(d.name for d in part)}")
-            for d, res in zip(part, _diagnose_batch(ctx, part, settings, say, workers)):
+            ckp = batch_checkpoints(store, part)     # each effect's fits of the batch, so it resumes within
+            for d, res in zip(part, _diagnose_batch(ctx, part, settings, say, workers, ckp)):
                 done[d.name] = res
                 if store is not None:
                     store.put(d, res)
+            if ckp is not None:
+                ckp.clear()
     return [done[nm] for nm in names]
 
 
 def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: DiagnosisSettings,
-                    say, workers: int = 1) -> list[DatasetDiagnosis]:
+                    say, workers: int = 1, checkpoints=None) -> list[DatasetDiagnosis]:
     s = settings
     K = ctx.K
     names = [d.name for d in data]
@@ -331,7 +337,7 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
     eng.evaluate((), eng.prior)
     say(f"base model fitted ({eng.n_fits} fits so far)")
     # ---- single effects on their grids
-    cand_keys = single_effect_grids(eng, effects, say, workers=workers)
+    cand_keys = single_effect_grids(eng, effects, say, workers=workers, checkpoints=checkpoints)
     cand_params: dict[str, int] = {"none": 0, **{e.name: e.n_params for e in effects}}
     cand_datasets: dict[str, set[int]] = {c: set(range(eng.nd)) for c in cand_keys}
     per_problem = {c: [list(keys) for _ in range(eng.P)] for c, keys in cand_keys.items()}
@@ -359,7 +365,7 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
             rms = np.column_stack([np.sqrt(np.mean(np.log(np.maximum(np.array(cv_pred[c]), 1e-12) / Tm) ** 2,
                                                    axis=1)) for c in single_cands])
             cal = calibrate(ctx, names, folds, Tm, eng.results[()]["forces"][pf], eng.results[()]["phi"][pf], rms,
-                            effects, s, say, workers)
+                            effects, s, say, workers, checkpoints)
             say(f"calibration done ({s.calibration.replicates} noise-only replicates per data set)")
         if fut is not None:
             results, n_fits, parts, refined = fut.result()

@@ -305,36 +305,67 @@ _GRID_COST = {"direction_tolerance": 3.5, "finer_groups": 2.5}
 
 
 def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: str = "",
-                        one_step: int = 0, workers: int = 1) -> dict[str, list[tuple]]:
+                        one_step: int = 0, workers: int = 1, checkpoints=None) -> dict[str, list[tuple]]:
     """Fit every problem at every grid point of every effect (each grid point warm-started from the fits at
     the nearest point already done); returns the keys per candidate ('none' and each effect). ``one_step``
     > 0: the folds by :meth:`_Engine.evaluate_one_step` with that many steps. ``workers`` > 1: the effects are
     fitted in that many forked processes, one effect at a time each, the most expensive first (a process that
     is done takes the next one, so the processes end together whatever the effects really cost); each effect's
-    fits depend only on the base model's and its own, so the results are the same."""
+    fits depend only on the base model's and its own, so the results are the same. ``checkpoints``
+    (:class:`neckstrength.gap.store.Checkpoints`): each effect's fits are stored as they finish and taken from
+    there when present (an interrupted batch resumes by effect)."""
     say = say or (lambda msg: None)
-    workers = max(1, min(int(workers), len(effects)))
+    ck = None
+    if checkpoints is not None:
+        ck = checkpoints.key(eng.ctx, eng.s, eng.T, eng.W, eng.prior, tag=f"grids/{one_step}/{sorted(eng.registry)}")
+    mine: dict[str, list[tuple]] = {}
+
+    def take(name: str, got) -> None:
+        keys, new, nf = got
+        mine.update(keys)
+        eng.results.update(new)
+        eng.n_fits += nf
+
+    todo = []
+    for e in effects:
+        got = checkpoints.get(ck, f"grid-{e.name}") if ck is not None else None
+        if got is not None:
+            take(e.name, got)
+            say(f"{tag}effect {e.name}: {len(mine[e.name])} grid points (resumed from {checkpoints.folder})")
+        else:
+            todo.append(e)
+
+    def grids_of(e: Effect):
+        """The effect's keys, its new results and its number of fits."""
+        before = set(eng.results)
+        n0 = eng.n_fits
+        keys = _grids(eng, [e], one_step)
+        return keys, {k: v for k, v in eng.results.items() if k not in before}, eng.n_fits - n0
+
+    workers = max(1, min(int(workers), len(todo)))
     if workers > 1:
-        cost = {e.name: len(e.grid(eng.s.grid_points)) * _GRID_COST.get(e.name, 1.0) for e in effects}
-        order = sorted(effects, key=lambda e: -cost[e.name])
-
-        def grids_of(e: Effect):
-            """In a forked process: the effect's keys, its new results and its number of fits."""
-            before = set(eng.results)
-            n0 = eng.n_fits
-            keys = single_effect_grids(eng, [e], one_step=one_step)
-            return keys, {k: v for k, v in eng.results.items() if k not in before}, eng.n_fits - n0
-
-        mine: dict[str, list[tuple]] = {}
-        for i, (keys, new, nf) in fork_map(grids_of, order, workers):
-            mine.update(keys)
-            eng.results.update(new)
-            eng.n_fits += nf
+        cost = {e.name: len(e.grid(eng.s.grid_points)) * _GRID_COST.get(e.name, 1.0) for e in todo}
+        order = sorted(todo, key=lambda e: -cost[e.name])
+        for i, got in fork_map(grids_of, order, workers):     # in forked processes
             name = order[i].name
+            take(name, got)
+            if ck is not None:
+                checkpoints.put(ck, f"grid-{name}", got)
             say(f"{tag}effect {name}: {len(mine[name])} grid points (in a worker process; {eng.n_fits} "
                 "fits so far)")
-        return {"none": [()], **{e.name: mine[e.name] for e in effects}}
-    cand_keys: dict[str, list[tuple]] = {"none": [()]}
+    else:
+        for e in todo:
+            got = grids_of(e)                  # in this process: its results and fit count are in eng already
+            mine.update(got[0])
+            if ck is not None:
+                checkpoints.put(ck, f"grid-{e.name}", got)
+            say(f"{tag}effect {e.name}: {len(mine[e.name])} grid points ({eng.n_fits} fits so far)")
+    return {"none": [()], **{e.name: mine[e.name] for e in effects}}
+
+
+def _grids(eng: _Engine, effects: Sequence[Effect], one_step: int) -> dict[str, list[tuple]]:
+    """:func:`single_effect_grids` in this process, without checkpoints or messages."""
+    cand_keys: dict[str, list[tuple]] = {}
     for e in effects:
         grid = e.grid(eng.s.grid_points)
         done: list[tuple[np.ndarray, tuple]] = [(e.neutral, ())]
@@ -348,7 +379,6 @@ def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: 
                 eng.evaluate(key, eng.results[near[1]]["phi"])
             done.append((th, key))
         cand_keys[e.name] = [k for _, k in done]
-        say(f"{tag}effect {e.name}: {len(grid)} grid points ({eng.n_fits} fits so far)")
     return cand_keys
 
 

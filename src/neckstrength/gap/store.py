@@ -14,6 +14,7 @@ import hashlib
 import os
 import pickle
 import re
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -79,3 +80,56 @@ class ResultStore:
         with os.fdopen(fd, "wb") as fh:
             pickle.dump(result, fh)
         os.replace(tmp, self.path(data))
+
+
+class Checkpoints:
+    """Intermediate results of one batch (each effect's grid fits of each engine, see
+    :func:`neckstrength.gap.engine.single_effect_grids`) in ``folder``, so an interrupted batch resumes within the
+    batch rather than from its start. The caller removes the folder (:meth:`clear`) once the batch's per-data-set
+    results are stored. A part is stored under a key of everything its fits depend on (the context, the engine's
+    settings and problems, the code), so a stale part is never reused."""
+
+    def __init__(self, folder: str | Path):
+        self.folder = Path(folder)
+        self._code = code_fingerprint()
+
+    def key(self, ctx: GapContext, settings, *arrays, tag: str = "") -> str:
+        h = hashlib.sha256((context_fingerprint(ctx) + repr(settings) + self._code + tag).encode())
+        for a in arrays:
+            h.update(repr(np.shape(a)).encode())
+            h.update(np.ascontiguousarray(np.asarray(a, float)).tobytes())
+        return h.hexdigest()[:24]
+
+    def _path(self, key: str, part: str) -> Path:
+        return self.folder / f"{re.sub(r'[^A-Za-z0-9_.-]', '_', part)[:40]}-{key}.pkl"
+
+    def get(self, key: str, part: str):
+        p = self._path(key, part)
+        if not p.exists():
+            return None
+        try:
+            with open(p, "rb") as fh:
+                return pickle.load(fh)
+        except (OSError, pickle.UnpicklingError, EOFError):
+            return None
+
+    def put(self, key: str, part: str, value) -> None:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=self.folder, suffix=".tmp")
+        with os.fdopen(fd, "wb") as fh:
+            pickle.dump(value, fh)
+        os.replace(tmp, self._path(key, part))
+
+    def clear(self) -> None:
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def batch_checkpoints(store: ResultStore | None, data) -> Checkpoints | None:
+    """The :class:`Checkpoints` of a batch of data sets next to ``store``'s results (None without a store)."""
+    if store is None:
+        return None
+    h = hashlib.sha256(store.base.encode())
+    for d in data:
+        h.update(d.name.encode())
+        h.update(np.asarray(d.forces, float).tobytes())
+    return Checkpoints(store.folder / "checkpoints" / h.hexdigest()[:20])
