@@ -65,21 +65,30 @@ class ResultStore:
         return self.folder / f"{safe}-{h.hexdigest()[:20]}.pkl"
 
     def get(self, data: BlindData):
-        p = self.path(data)
-        if not p.exists():
-            return None
-        try:
-            with open(p, "rb") as fh:
-                return pickle.load(fh)
-        except (OSError, pickle.UnpicklingError, EOFError):
-            return None
+        return _load(self.path(data))
 
     def put(self, data: BlindData, result) -> None:
-        self.folder.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=self.folder, suffix=".tmp")
-        with os.fdopen(fd, "wb") as fh:
-            pickle.dump(result, fh)
-        os.replace(tmp, self.path(data))
+        _dump(self.path(data), result)
+
+
+def _load(p: Path):
+    """The pickle at ``p``, or None if it is missing or unreadable (a partial write is never left there)."""
+    if not p.exists():
+        return None
+    try:
+        with open(p, "rb") as fh:
+            return pickle.load(fh)
+    except (OSError, pickle.UnpicklingError, EOFError):
+        return None
+
+
+def _dump(p: Path, value) -> None:
+    """Pickle ``value`` to ``p`` atomically (a temporary file in the same folder, then renamed)."""
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=p.parent, suffix=".tmp")
+    with os.fdopen(fd, "wb") as fh:
+        pickle.dump(value, fh)
+    os.replace(tmp, p)
 
 
 class Checkpoints:
@@ -104,21 +113,10 @@ class Checkpoints:
         return self.folder / f"{re.sub(r'[^A-Za-z0-9_.-]', '_', part)[:40]}-{key}.pkl"
 
     def get(self, key: str, part: str):
-        p = self._path(key, part)
-        if not p.exists():
-            return None
-        try:
-            with open(p, "rb") as fh:
-                return pickle.load(fh)
-        except (OSError, pickle.UnpicklingError, EOFError):
-            return None
+        return _load(self._path(key, part))
 
     def put(self, key: str, part: str, value) -> None:
-        self.folder.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=self.folder, suffix=".tmp")
-        with os.fdopen(fd, "wb") as fh:
-            pickle.dump(value, fh)
-        os.replace(tmp, self._path(key, part))
+        _dump(self._path(key, part), value)
 
     def clear(self) -> None:
         shutil.rmtree(self.folder, ignore_errors=True)
