@@ -371,7 +371,7 @@ def _power_hits(ctx: GapContext, sims: list[BlindData], owner: list[tuple[int, s
     necessary condition are not named. Stage 2 screens the others with every effect and decides exactly as the
     diagnosis does. (Equal up to the solver's rounding, which depends on what is fitted together; a data set
     within that rounding of the threshold could differ.)"""
-    from neckstrength.gap.engine import _GRID_COST
+    from neckstrength.gap.engine import grid_cost
     from neckstrength.gap.forked import fork_map
 
     cs = s.calibration
@@ -381,7 +381,7 @@ def _power_hits(ctx: GapContext, sims: list[BlindData], owner: list[tuple[int, s
     groups: dict[str, list[int]] = {}
     for j, (_, e) in enumerate(owner):
         groups.setdefault(e, []).append(j)
-    order = sorted(groups, key=lambda e: -len(groups[e]) * len(reg[e].grid(s.grid_points)) * _GRID_COST.get(e, 1.0))
+    order = sorted(groups, key=lambda e: -len(groups[e]) * grid_cost(reg[e], s.grid_points))
 
     def stage1(e: str) -> np.ndarray:
         js = groups[e]

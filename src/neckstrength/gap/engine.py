@@ -304,6 +304,12 @@ class _Engine:
 _GRID_COST = {"direction_tolerance": 3.5, "finer_groups": 2.5}
 
 
+def grid_cost(e: Effect, grid_points: int) -> float:
+    """Relative cost of fitting effect ``e`` on its grid (grid points x :data:`_GRID_COST`): the order in which the
+    worker processes take the effects, the most expensive first."""
+    return len(e.grid(grid_points)) * _GRID_COST.get(e.name, 1.0)
+
+
 def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: str = "",
                         one_step: int = 0, workers: int = 1, checkpoints=None) -> dict[str, list[tuple]]:
     """Fit every problem at every grid point of every effect (each grid point warm-started from the fits at
@@ -320,7 +326,7 @@ def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: 
         ck = checkpoints.key(eng.ctx, eng.s, eng.T, eng.W, eng.prior, tag=f"grids/{one_step}/{sorted(eng.registry)}")
     mine: dict[str, list[tuple]] = {}
 
-    def take(name: str, got) -> None:
+    def take(got) -> None:
         keys, new, nf = got
         mine.update(keys)
         eng.results.update(new)
@@ -330,7 +336,7 @@ def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: 
     for e in effects:
         got = checkpoints.get(ck, f"grid-{e.name}") if ck is not None else None
         if got is not None:
-            take(e.name, got)
+            take(got)
             say(f"{tag}effect {e.name}: {len(mine[e.name])} grid points (resumed from {checkpoints.folder})")
         else:
             todo.append(e)
@@ -344,11 +350,10 @@ def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: 
 
     workers = max(1, min(int(workers), len(todo)))
     if workers > 1:
-        cost = {e.name: len(e.grid(eng.s.grid_points)) * _GRID_COST.get(e.name, 1.0) for e in todo}
-        order = sorted(todo, key=lambda e: -cost[e.name])
+        order = sorted(todo, key=lambda e: -grid_cost(e, eng.s.grid_points))
         for i, got in fork_map(grids_of, order, workers):     # in forked processes
             name = order[i].name
-            take(name, got)
+            take(got)
             if ck is not None:
                 checkpoints.put(ck, f"grid-{name}", got)
             say(f"{tag}effect {name}: {len(mine[name])} grid points (in a worker process; {eng.n_fits} "

@@ -61,14 +61,18 @@ class ResultStore:
 
     def path(self, data: BlindData) -> Path:
         h = hashlib.sha256(self.base.encode() + data.name.encode() + np.asarray(data.forces, float).tobytes())
-        safe = re.sub(r"[^A-Za-z0-9_.-]", "_", data.name)[:60]
-        return self.folder / f"{safe}-{h.hexdigest()[:20]}.pkl"
+        return self.folder / f"{_safe(data.name, 60)}-{h.hexdigest()[:20]}.pkl"
 
     def get(self, data: BlindData):
         return _load(self.path(data))
 
     def put(self, data: BlindData, result) -> None:
         _dump(self.path(data), result)
+
+
+def _safe(name: str, n: int) -> str:
+    """``name`` as a file-name prefix: letters, digits, '_', '.', '-' kept, the rest '_', at most ``n`` long."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", name)[:n]
 
 
 def _load(p: Path):
@@ -110,7 +114,7 @@ class Checkpoints:
         return h.hexdigest()[:24]
 
     def _path(self, key: str, part: str) -> Path:
-        return self.folder / f"{re.sub(r'[^A-Za-z0-9_.-]', '_', part)[:40]}-{key}.pkl"
+        return self.folder / f"{_safe(part, 40)}-{key}.pkl"
 
     def get(self, key: str, part: str):
         return _load(self._path(key, part))
