@@ -14,6 +14,7 @@ rule trials_import:
         trials="results/trials/{trialset}/quality_trials.csv",
         exclusions="results/trials/{trialset}/exclusions.csv",
         fatigue="results/trials/{trialset}/fatigue.csv",
+        noise="results/trials/{trialset}/noise.csv",
         report="results/trials/{trialset}/quality_report.md",
         figure=report(
             "results/trials/{trialset}/fig_quality.png",

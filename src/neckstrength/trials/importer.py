@@ -20,13 +20,14 @@ from neckstrength.io import atomic_write_csv, atomic_write_text
 from neckstrength.trials import emg as emg_mod
 from neckstrength.trials import report
 from neckstrength.trials.formats import CARDINAL, emg_channels, read_trials
+from neckstrength.trials.noise import repeat_noise
 from neckstrength.trials.resolve import MatchSettings, default_frames, resolve_trials
 from neckstrength.trials.select import fatigue_table, select_trials
 
 #: output keys -> file names (the pipeline rule and the CLI use the same names)
 OUTPUT_FILES = {"max_force": "max_force.csv", "activation": "activation.csv",
                 "activation_by_muscle": "activation_by_muscle.csv", "trials": "quality_trials.csv",
-                "exclusions": "exclusions.csv", "fatigue": "fatigue.csv", "report": "quality_report.md",
+                "exclusions": "exclusions.csv", "fatigue": "fatigue.csv", "noise": "noise.csv", "report": "quality_report.md",
                 "figure": "fig_quality.png", "summary": "summary.json"}
 
 
@@ -65,6 +66,7 @@ class ImportResult:
     exclusions: pd.DataFrame
     emg_missing: pd.DataFrame
     summary: dict
+    noise: pd.DataFrame = field(default_factory=pd.DataFrame)   # trial-to-trial scatter (trials.noise)
 
 
 def import_trials(trials_csv: str | Path, directions: pd.DataFrame, settings: ImportSettings | None = None,
@@ -108,6 +110,7 @@ def import_trials(trials_csv: str | Path, directions: pd.DataFrame, settings: Im
     emg_missing = pd.DataFrame(missing, columns=["participant", "channel"])
     fat_dirs, fat = fatigue_table(sel, s.fatigue_threshold)
     excl = report.exclusions(sel, names)
+    noise = repeat_noise(sel, names)
     summary = {"source": str(trials_csv), "signals": None if signals_csv is None else str(signals_csv),
                "neckstrength": __version__, "settings": {**asdict(s), "frames": dict(s.frames)},
                "trials": int(len(sel)), "participants": len(parts), "participant_ids": parts,
@@ -116,9 +119,11 @@ def import_trials(trials_csv: str | Path, directions: pd.DataFrame, settings: Im
                "excluded_mismatch": int(sel["reason"].str.startswith("direction not matched").sum()),
                "missing_directions": int((excl["what"] == "direction").sum()),
                "fatigued": [r["participant"] for r in fat.to_dict("records") if r["fatigued"]],
-               "emg_channels": chans, "emg_missing": missing}
+               "emg_channels": chans, "emg_missing": missing,
+               "noise_log_sd": {r["participant"]: (None if r["df"] == 0 else float(r["noise_log_sd"]))
+                                for r in noise.to_dict("records")}}
     summary["settings"]["source"] = str(trials_csv)
-    return ImportResult(sel, mf, act, by_muscle, fat_dirs, fat, excl, emg_missing, summary)
+    return ImportResult(sel, mf, act, by_muscle, fat_dirs, fat, excl, emg_missing, summary, noise)
 
 
 def write_import(result: ImportResult, outputs: Mapping[str, str | Path]) -> None:
@@ -141,6 +146,11 @@ def write_import(result: ImportResult, outputs: Mapping[str, str | Path]) -> Non
     atomic_write_csv(result.exclusions, outputs["exclusions"], prov)
     atomic_write_csv(result.fatigue.merge(result.fatigue_dirs, on="participant", how="left"), outputs["fatigue"],
                      prov + ["change_rel = end / start - 1 of the kept cardinal efforts (N*m)"], float_format="%.4g")
+    atomic_write_csv(result.noise, outputs["noise"], prov + [
+        "noise_log_sd: pooled within-direction SD of log force over the valid repeats of the test directions "
+        "(main block), df = sum (n - 1); ci_low / ci_high: 95% chi-square interval (normal log trials); the "
+        "scatter of one trial (docs/trials.md); df 0: no repeats, no value",
+        "use: gap.calibration.noise_table (docs/gap_diagnosis.md)"], float_format="%.5g")
     flags = result.selected[result.selected["kept"] & (result.selected["flag"] != "")]
     atomic_write_text(report.markdown(s, result.fatigue, result.exclusions, flags, result.emg_missing),
                       outputs["report"])

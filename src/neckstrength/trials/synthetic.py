@@ -59,8 +59,11 @@ def _perturb(u: np.ndarray, big: bool, rng: np.random.Generator, ratio_error: bo
 
 
 def generate_example(config: Mapping, seed: int = 20261123, participants=("P01", "P02", "P03"),
-                     levels=(1.0, 0.75, 1.15)) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Trial table (the documented format) and the true strengths (s3m24 groups) of a synthetic lab."""
+                     levels=(1.0, 0.75, 1.15), repeat_sd: float | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Trial table (the documented format) and the true strengths (s3m24 groups) of a synthetic lab.
+
+    ``repeat_sd``: instead of the effort shares and 2% noise above, every trial is the maximum times
+    ``exp(N(0, repeat_sd))`` (full effort, a known trial-to-trial log SD: tests of the repeat-noise estimate)."""
     from neckstrength.config import build_directions, full_model_from_config, model_from_config
 
     rng = np.random.default_rng(seed)
@@ -106,6 +109,9 @@ def generate_example(config: Mapping, seed: int = 20261123, participants=("P01",
             while t < n_trials:
                 eff = rng.uniform(0.88, 1.0) if t == 0 else rng.uniform(0.90, 1.0)
                 mag = w[k] * level * eff * float(np.exp(rng.normal(0, 0.02)))
+                if repeat_sd is not None:
+                    eff = 1.0
+                    mag = w[k] * level * float(np.exp(rng.normal(0, repeat_sd)))
                 mags.append(mag)
                 if t == 1 and mags[1] > 1.10 * mags[0]:
                     n_trials = 3
