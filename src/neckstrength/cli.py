@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -301,51 +302,126 @@ def _cmd_diagnose(args) -> int:
     return 0
 
 
+# One line of description and an example per subcommand (shown by `neckstrength <command> --help`).
+COMMANDS = {
+    "derive-model": ("Derive the full-model tables (strengths, moment arms, optionally the posture tables) from an "
+                     "OpenSim neck model. Needs the 'opensim' extra; the default pipeline never does.",
+                     "neckstrength derive-model --osim Mortensen2014_rigidTorso.osim "
+                     "--multifidus-osim ModelOfNeckAndShoulder.osim --out data/model"),
+    "directions": ("Write the table of the test directions of a config (points, normals, unit wrenches, planes) at "
+                   "full precision.",
+                   "neckstrength directions --config config/config.yaml --out results/geometry/directions.csv"),
+    "max-wrench": ("Maximum wrench and force of a model in each test direction (the max-wrench LP, solved by HiGHS), "
+                   "for the baseline strengths or the strengths of a CSV.",
+                   "neckstrength max-wrench --model s3m24 --direction back"),
+    "validate": ("Check an input file (measurements, activations, test points or a trial table) against the config "
+                 "and report the first problem with its file, row and field. Writes nothing.",
+                 "neckstrength validate measurements data/thesis/table_A2_max_force.csv"),
+    "session": ("Clinician-in-the-loop session: propose the next test, take the measured force, update the "
+                "estimate, recommend when to stop (docs/session.md).",
+                "neckstrength session start --model p2m7 --participant P01 --out sessions/P01"),
+    "session start": ("Start an interactive session in a new folder; every accepted entry is logged before the "
+                      "estimate changes.",
+                      "neckstrength session start --model s3m24 --participant P01 --out sessions/P01"),
+    "session replay": ("Run a session non-interactively from a CSV of measurements (direction,force_N"
+                       "[,activations]); gives the same numbers as the interactive session.",
+                       "neckstrength session replay --csv measurements.csv --out sessions/P01-replay"),
+    "session resume": ("Continue a session from its log (session.log.jsonl) in the same state, e.g. after a crash.",
+                       "neckstrength session resume --out sessions/P01"),
+    "diagnose": ("Sim-to-real gap diagnosis of one data set of maximum forces: where the model misses, which "
+                 "unmodelled effect explains it (named only with a calibrated p-value), how far the held-out gap "
+                 "shrinks (docs/gap_diagnosis.md).",
+                 "neckstrength diagnose --measurements max_force.csv --dataset P01 --model p2m7 --out results/P01_gap"),
+    "import-trials": ("Import a lab's trial table: match each trial to its test direction, keep the largest valid "
+                      "trial per direction, check fatigue and EMG; writes max_force.csv, activation.csv and "
+                      "quality_report.md (docs/trials.md).",
+                      "neckstrength import-trials data/example_lab/trials.csv --out results/example_lab/import"),
+    "estimate": ("Estimate one participant's muscle strengths from a max-force table or a trial table: Algorithm 4 "
+                 "(Chapter 5), Algorithm 4 then ABC-SMC, or the joint estimator (Chapter 6), with the pipeline's "
+                 "settings.",
+                 "neckstrength estimate --measurements max_force.csv --participant P01 --model p2m7 "
+                 "--out results/P01_p2m7"),
+    "c3d-to-trials": ("Convert C3D files (one per trial, listed in a manifest) into a trial table and an EMG signals "
+                      "table for import-trials. Needs the 'c3d' extra.",
+                      "neckstrength c3d-to-trials manifest.csv --out results/lab_c3d"),
+    "example-lab": ("Write the SYNTHETIC example lab data set (trials generated from the s3m24 model, with direction "
+                    "errors, noise, fatigue and a missing EMG channel) and its true strengths.",
+                    "neckstrength example-lab --out data/example_lab --seed 20261123"),
+}
+
+
+def _doc(command: str) -> dict:
+    """add_parser keywords: the command's description and example."""
+    description, example = COMMANDS[command]
+    return {"description": textwrap.fill(description, 100), "epilog": f"example:\n  {example}",
+            "formatter_class": argparse.RawDescriptionHelpFormatter}
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("neckstrength")
+    except PackageNotFoundError:                     # running from a source tree that is not installed
+        from neckstrength import __version__
+
+        return __version__
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="neckstrength", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog="`neckstrength <command> --help` describes a command and gives an example.")
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="verb", required=True)
 
-    d = sub.add_parser("derive-model", help="derive full-model tables from an OpenSim model (needs opensim)")
-    d.add_argument("--osim", required=True)
-    d.add_argument("--multifidus-osim", default=None)
-    d.add_argument("--out", default="data/model")
+    d = sub.add_parser("derive-model", **_doc("derive-model"), help="derive full-model tables from an OpenSim model (needs opensim)")
+    d.add_argument("--osim", required=True, help="the OpenSim neck model (.osim) to derive the 96 muscles from")
+    d.add_argument("--multifidus-osim", default=None,
+                   help="a second .osim that supplies the multifidus (needed for --postures)")
+    d.add_argument("--out", default="data/model", help="output folder of the model tables (default data/model)")
     d.add_argument("--postures", action="store_true",
                    help="also derive the posture tables into <out>/postures (docs/postures.md)")
     d.set_defaults(func=_cmd_derive)
 
-    d = sub.add_parser("directions", help="write the test-direction table")
-    d.add_argument("--config", default="config/config.yaml")
-    d.add_argument("--out", default="results/geometry/directions.csv")
+    d = sub.add_parser("directions", **_doc("directions"), help="write the test-direction table")
+    d.add_argument("--config", default="config/config.yaml", help="config whose geometry section defines the "
+                                                                   "directions (default config/config.yaml)")
+    d.add_argument("--out", default="results/geometry/directions.csv", help="output CSV")
     d.set_defaults(func=_cmd_directions)
 
-    d = sub.add_parser("max-wrench", help="max wrench of a model in the test directions")
-    d.add_argument("--config", default="config/config.yaml")
+    d = sub.add_parser("max-wrench", **_doc("max-wrench"), help="max wrench of a model in the test directions")
+    d.add_argument("--config", default="config/config.yaml",
+                   help="settings and test directions (default config/config.yaml)")
     d.add_argument("--model", default="s3m24", help="p2m7, p3m12, s3m24 or <kinematic>-<grouping>")
     d.add_argument("--strengths", default=None, help="CSV with columns muscle,strength_N (others: baseline)")
     d.add_argument("--direction", action="append", help="restrict to this direction (repeatable)")
     d.set_defaults(func=_cmd_max_wrench)
 
-    d = sub.add_parser("validate", help="validate an input file")
-    d.add_argument("kind", choices=["measurements", "activations", "points", "trials"])
-    d.add_argument("file")
+    d = sub.add_parser("validate", **_doc("validate"), help="validate an input file")
+    d.add_argument("kind", choices=["measurements", "activations", "points", "trials"],
+                   help="measurements (Table A.2 layout), activations (Table A.3), points (test-point coordinates) "
+                        "or trials (a lab's trial table, docs/trials.md)")
+    d.add_argument("file", help="the file to check")
     d.add_argument("--config", default="config/config.yaml", help="test directions (names) come from this config")
     d.add_argument("--signals", default=None, help="trials: EMG signals file (docs/trials.md)")
     d.set_defaults(func=_cmd_validate)
 
-    d = sub.add_parser("session", help="clinician-in-the-loop session (propose, measure, update, stop)")
+    d = sub.add_parser("session", **_doc("session"),
+                       help="clinician-in-the-loop session (propose, measure, update, stop)")
     ss = d.add_subparsers(dest="action", required=True)
     for action in ("start", "replay"):
-        a = ss.add_parser(action, help="start an interactive session" if action == "start" else
+        a = ss.add_parser(action, **_doc(f"session {action}"), help="start an interactive session" if action == "start" else
                           "run a session from a CSV of measurements (direction,force_N[,activations])")
         if action == "replay":
-            a.add_argument("--csv", required=True)
+            a.add_argument("--csv", required=True, help="measurements: direction,force_N[,activations] per row")
         a.add_argument("--out", required=True, help="session folder (log, summary)")
-        a.add_argument("--model", default="p2m7", choices=["p2m7", "p3m12", "s3m24"])
-        a.add_argument("--participant", default="anonymous")
+        a.add_argument("--model", default="p2m7", choices=["p2m7", "p3m12", "s3m24"], help="model (default p2m7)")
+        a.add_argument("--participant", default="anonymous", help="participant name written to the session files")
         a.add_argument("--priority", action="append", metavar="MUSCLE=WEIGHT",
                        help="Eq. 6.8 muscle priority (repeatable; unlisted muscles weigh 0)")
-        a.add_argument("--config", default="config/config.yaml")
+        a.add_argument("--config", default="config/config.yaml",
+                       help="settings and test directions (default config/config.yaml)")
         a.add_argument("--n-candidates", type=int, default=None, help="N_F (default: config chapter6)")
         a.add_argument("--prior-scale", type=float, default=1.0, help="a in the prior f_0 = a f'_base")
         a.add_argument("--stop-frac", type=float, default=None,
@@ -364,24 +440,25 @@ def build_parser() -> argparse.ArgumentParser:
         a.add_argument("--posture-change-cost", type=float, default=0.0, metavar="NATS",
                        help="with --postures: nats charged by the criterion for a test in another posture than the "
                             "last one (default 0)")
-    a = ss.add_parser("resume", help="resume a session from its log")
-    a.add_argument("--out", required=True)
+    a = ss.add_parser("resume", **_doc("session resume"), help="resume a session from its log")
+    a.add_argument("--out", required=True, help="the session folder to resume")
     for a in ss.choices.values():
         a.add_argument("--threads", type=int, default=0,
                        help="threads of the joint posterior's solver (directions solved concurrently; the numbers do "
                             "not depend on it); default 0 = every core")
     d.set_defaults(func=_cmd_session)
 
-    d = sub.add_parser("diagnose", help="sim-to-real gap diagnosis of one data set (forces only)")
-    d.add_argument("--config", default="config/config.yaml")
+    d = sub.add_parser("diagnose", **_doc("diagnose"), help="sim-to-real gap diagnosis of one data set (forces only)")
+    d.add_argument("--config", default="config/config.yaml",
+                   help="settings and test directions (default config/config.yaml)")
     d.add_argument("--model", default=None, help="p2m7, p3m12, s3m24 or <kinematic>-<grouping> (default: "
                                                  "first of config gap.models)")
-    d.add_argument("--dataset", required=True, help="participant column of the measurement table, or norm/weak")
+    d.add_argument("--dataset", "--participant", dest="dataset", required=True, help="participant column of the measurement table, or norm/weak")
     d.add_argument("--measurements", default=None, help="a measurement table in the Table A.2 layout "
                                                         "(default: config gap.measurements / data.measurements)")
     d.add_argument("--effects", default=None, help="comma-separated effects (default: config gap.effects)")
     d.add_argument("--out", default=None, help="output folder (default results/gap/<model>/<dataset>)")
-    d.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+    d.add_argument("--workers", "--threads", dest="workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="processes for the effects' grids and the calibration's screen (default 2, as the "
                         "pipeline rule; each may need about 1 GB more; the answer does not depend on it)")
     d.add_argument("--extra-trials", default=None,
@@ -398,14 +475,15 @@ def build_parser() -> argparse.ArgumentParser:
         a.add_argument("--pad-offset", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
                        help="C0-C1 relative to the lower posterior pad centre, m (default 0.08 -0.02 0)")
 
-    d = sub.add_parser("import-trials", help="trial table -> max-force and activation tables + quality report")
+    d = sub.add_parser("import-trials", **_doc("import-trials"), help="trial table -> max-force and activation tables + quality report")
     d.add_argument("trials", help="trial table (CSV, docs/trials.md)")
     d.add_argument("--out", required=True, help="output folder")
-    d.add_argument("--config", default="config/config.yaml")
+    d.add_argument("--config", default="config/config.yaml",
+                   help="settings and test directions (default config/config.yaml)")
     trial_options(d)
     d.set_defaults(func=_cmd_import_trials)
 
-    d = sub.add_parser("estimate", help="estimate one participant's strengths from a table or trials")
+    d = sub.add_parser("estimate", **_doc("estimate"), help="estimate one participant's strengths from a table or trials")
     src = d.add_mutually_exclusive_group(required=True)
     src.add_argument("--measurements", default=None, help="max-force table, Table A.2 layout")
     src.add_argument("--trials", default=None, help="trial table: imported first into <out>/import")
@@ -419,25 +497,26 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--seed", type=int, default=None, help="default: the config's seed (recorded in run.json)")
     d.add_argument("--emg", choices=["none", "a3_band"], default="none", help="EMG bounds (as chapter5.participant_emg)")
     d.add_argument("--max-iter", type=int, default=None, help="Algorithm 4 iterations cap (default: config)")
-    d.add_argument("--threads", type=int, default=1)
+    d.add_argument("--threads", type=int, default=1,
+                   help="threads of the max-wrench solver (default 1)")
     d.add_argument("--criterion", default="joint_eig", choices=["joint_eig", "marginal_entropy"],
                    help="joint: test-selection criterion")
     d.add_argument("--no-figures", action="store_true", help="skip the figures (Algorithm 4 / ABC-SMC)")
     trial_options(d)
     d.set_defaults(func=_cmd_estimate)
 
-    d = sub.add_parser("c3d-to-trials", help="C3D files of a manifest -> trial table + EMG signals (c3d extra)")
+    d = sub.add_parser("c3d-to-trials", **_doc("c3d-to-trials"), help="C3D files of a manifest -> trial table + EMG signals (c3d extra)")
     d.add_argument("manifest", help="CSV: path,participant,direction,block,trial,frame (one C3D file per trial)")
-    d.add_argument("--out", required=True)
-    d.add_argument("--config", default="config/config.yaml")
+    d.add_argument("--out", required=True, help="output folder (trials.csv, signals.csv)")
+    d.add_argument("--config", default="config/config.yaml", help="test directions of this config")
     d.add_argument("--channel", action="append", metavar="NAME=LABEL",
                    help="analog label of Fx..Mz or an EMG channel (SCM_R, ...) when it differs (repeatable)")
     d.set_defaults(func=_cmd_c3d)
 
-    d = sub.add_parser("example-lab", help="write the SYNTHETIC example lab data set")
-    d.add_argument("--out", default="data/example_lab")
-    d.add_argument("--config", default="config/config.yaml")
-    d.add_argument("--seed", type=int, default=20261123)
+    d = sub.add_parser("example-lab", **_doc("example-lab"), help="write the SYNTHETIC example lab data set")
+    d.add_argument("--out", default="data/example_lab", help="output folder (default data/example_lab)")
+    d.add_argument("--config", default="config/config.yaml", help="model and test directions of this config")
+    d.add_argument("--seed", type=int, default=20261123, help="seed of the synthetic trials (default 20261123)")
     d.set_defaults(func=_cmd_example_lab)
     return p
 
