@@ -375,7 +375,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="verb", required=True)
 
-    d = sub.add_parser("derive-model", **_doc("derive-model"), help="derive full-model tables from an OpenSim model (needs opensim)")
+    d = sub.add_parser("derive-model", **_doc("derive-model"),
+                       help="derive full-model tables from an OpenSim model (needs opensim)")
     d.add_argument("--osim", required=True, help="the OpenSim neck model (.osim) to derive the 96 muscles from")
     d.add_argument("--multifidus-osim", default=None,
                    help="a second .osim that supplies the multifidus (needed for --postures)")
@@ -411,7 +412,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="clinician-in-the-loop session (propose, measure, update, stop)")
     ss = d.add_subparsers(dest="action", required=True)
     for action in ("start", "replay"):
-        a = ss.add_parser(action, **_doc(f"session {action}"), help="start an interactive session" if action == "start" else
+        a = ss.add_parser(action, **_doc(f"session {action}"),
+                          help="start an interactive session" if action == "start" else
                           "run a session from a CSV of measurements (direction,force_N[,activations])")
         if action == "replay":
             a.add_argument("--csv", required=True, help="measurements: direction,force_N[,activations] per row")
@@ -453,7 +455,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="settings and test directions (default config/config.yaml)")
     d.add_argument("--model", default=None, help="p2m7, p3m12, s3m24 or <kinematic>-<grouping> (default: "
                                                  "first of config gap.models)")
-    d.add_argument("--dataset", "--participant", dest="dataset", required=True, help="participant column of the measurement table, or norm/weak")
+    d.add_argument("--dataset", "--participant", dest="dataset", required=True,
+                   help="participant column of the measurement table, or norm/weak")
     d.add_argument("--measurements", default=None, help="a measurement table in the Table A.2 layout "
                                                         "(default: config gap.measurements / data.measurements)")
     d.add_argument("--effects", default=None, help="comma-separated effects (default: config gap.effects)")
@@ -475,7 +478,8 @@ def build_parser() -> argparse.ArgumentParser:
         a.add_argument("--pad-offset", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
                        help="C0-C1 relative to the lower posterior pad centre, m (default 0.08 -0.02 0)")
 
-    d = sub.add_parser("import-trials", **_doc("import-trials"), help="trial table -> max-force and activation tables + quality report")
+    d = sub.add_parser("import-trials", **_doc("import-trials"),
+                       help="trial table -> max-force and activation tables + quality report")
     d.add_argument("trials", help="trial table (CSV, docs/trials.md)")
     d.add_argument("--out", required=True, help="output folder")
     d.add_argument("--config", default="config/config.yaml",
@@ -483,7 +487,8 @@ def build_parser() -> argparse.ArgumentParser:
     trial_options(d)
     d.set_defaults(func=_cmd_import_trials)
 
-    d = sub.add_parser("estimate", **_doc("estimate"), help="estimate one participant's strengths from a table or trials")
+    d = sub.add_parser("estimate", **_doc("estimate"),
+                       help="estimate one participant's strengths from a table or trials")
     src = d.add_mutually_exclusive_group(required=True)
     src.add_argument("--measurements", default=None, help="max-force table, Table A.2 layout")
     src.add_argument("--trials", default=None, help="trial table: imported first into <out>/import")
@@ -505,7 +510,8 @@ def build_parser() -> argparse.ArgumentParser:
     trial_options(d)
     d.set_defaults(func=_cmd_estimate)
 
-    d = sub.add_parser("c3d-to-trials", **_doc("c3d-to-trials"), help="C3D files of a manifest -> trial table + EMG signals (c3d extra)")
+    d = sub.add_parser("c3d-to-trials", **_doc("c3d-to-trials"),
+                       help="C3D files of a manifest -> trial table + EMG signals (c3d extra)")
     d.add_argument("manifest", help="CSV: path,participant,direction,block,trial,frame (one C3D file per trial)")
     d.add_argument("--out", required=True, help="output folder (trials.csv, signals.csv)")
     d.add_argument("--config", default="config/config.yaml", help="test directions of this config")
