@@ -23,6 +23,7 @@ include: "workflow/rules/trials.smk"
 include: "workflow/rules/calibration.smk"
 include: "workflow/rules/postures.smk"
 include: "workflow/rules/clinician.smk"
+include: "workflow/rules/identifiability.smk"
 # keep report.smk the last include: its inputs enumerate the outputs of every chapter above
 include: "workflow/rules/report.smk"
 

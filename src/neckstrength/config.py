@@ -366,3 +366,32 @@ def _discriminate_text(config: Mapping) -> list[str]:
             f"{d.strength_spread}); pool: {'repeats' if d.repeats else ''}{' + ' if d.repeats and d.surface else ''}"
             f"{'surface grid every ' + format(d.azimuth_step_deg, 'g') + ' deg azimuth at elevations ' if d.surface else ''}"
             f"{list(d.elevation_deg) if d.surface else ''}")]
+
+
+# --- identifiability (issue 31 item 1) ------------------------------------------------------------------------
+
+
+def identifiability_settings(config: Mapping, model_name: str):
+    """``identifiability``: the misfit profiles and distinguishability study of ``model_name`` (frozen dataclass)."""
+    from neckstrength.identifiability.profile import ProfileSettings
+    from neckstrength.identifiability.study import StudySettings
+
+    c = config["identifiability"]
+    per = dict(c.get("model_settings", {}).get(model_name, {}))
+    grid = tuple(float(x) for x in per.get("grid", c["grid"]))
+    bounds = tuple((str(k), float(v[0]), float(v[1])) for k, v in c["bounds"].items())
+    prof = ProfileSettings(grid=grid, bounds=bounds, n_starts=int(per.get("n_starts", c["n_starts"])),
+                           continuation=bool(c["continuation"]), max_iter=int(c["max_iter"]),
+                           fd_step=float(c["fd_step"]), tol=float(c["tol"]))
+    groups = per.get("groups", c["groups"].get(model_name, "all"))
+    if model_name not in c["deficit_group"]:
+        raise ValueError(f"identifiability.deficit_group has no entry for model {model_name!r}")
+    pp = c["participants"]
+    return StudySettings(profile=prof, groups=None if groups == "all" else tuple(groups),
+                         deficit_group=str(c["deficit_group"][model_name]),
+                         deficits=tuple(float(x) for x in c["deficits"]),
+                         n_participants=int(per.get("n_participants", pp["n"])), population_sd=float(pp["sd"]),
+                         participant_deficit=float(pp["deficit"]),
+                         protocols=tuple(per.get("protocols", c["protocols"])),
+                         protocol_grid=tuple(float(x) for x in c["protocol_grid"]), sigma_ref=float(c["sigma_ref"]),
+                         check_rtol=float(c["check_rtol"]))

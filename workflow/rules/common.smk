@@ -266,6 +266,15 @@ def postures_outputs():
     return out
 
 
+def identifiability_outputs():
+    # outputs of workflow/rules/identifiability.smk (issue 31; its rule `identifiability` builds them)
+    out = []
+    for named in config["identifiability"]["models"]:
+        out += [f"results/identifiability/{named}/{f}" for f in ("profiles.csv", "distinguishable.csv",
+                                                                 "fig_profiles.png")]
+    return out
+
+
 def final_outputs():
     out = [
         "results/model/full_model.csv",
@@ -289,6 +298,8 @@ def final_outputs():
     out += postures_outputs()
     if config["clinician"]["in_all"]:
         out += clinician_outputs_list()
+    if config["identifiability"]["in_all"]:
+        out += identifiability_outputs()
     out += report_outputs()
     return out
 
