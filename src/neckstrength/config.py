@@ -232,9 +232,23 @@ def calibration_settings(config: Mapping) -> CalibrationSettings:
     c = dict(config["gap"].get("calibration") or {})
     if not c:
         return CalibrationSettings(replicates=0)
-    noise = c.get("noise", "heldout")
+    noise = c.get("noise", "auto")
+    if isinstance(noise, bool) or not (isinstance(noise, (int, float)) and noise > 0
+                                       or noise in ("auto", "repeats", "prior", "heldout")):
+        raise ValueError(f"gap.calibration.noise: auto, repeats, prior, heldout or a positive log SD, not {noise!r}")
+    prior = c.get("noise_prior") or {}
+    prior = tuple(float(prior.get(k, d)) for k, d in (("low", 0.05), ("central", 0.08), ("high", 0.15)))
+    if not 0 < prior[0] <= prior[1] <= prior[2]:
+        raise ValueError(f"gap.calibration.noise_prior: need 0 < low <= central <= high, not {prior}")
+    repeats = ()
+    if c.get("noise_table"):
+        from neckstrength.trials.noise import read_noise_table
+
+        repeats = tuple((p, v["noise_log_sd"], v["df"], v["ci_low"], v["ci_high"])
+                        for p, v in sorted(read_noise_table(c["noise_table"]).items()))
     return CalibrationSettings(replicates=int(c.get("replicates", 39)), alpha=float(c.get("alpha", 0.05)),
-                               noise=noise if isinstance(noise, str) else float(noise),
+                               noise=noise if isinstance(noise, str) else float(noise), noise_prior=prior,
+                               repeats=repeats, sensitivity=bool(c.get("sensitivity", True)),
                                power_sizes=tuple(float(u) for u in c.get("power_sizes", (0.25, 0.5, 1.0))),
                                power_replicates=int(c.get("power_replicates", 5)),
                                power_target=float(c.get("power_target", 0.8)),

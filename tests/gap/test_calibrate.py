@@ -73,11 +73,58 @@ def test_calibrated_decision_remainder_and_power(ctx_p2):
             assert np.isfinite(ps.loc[e, "min_detectable_share"]) == bool((g["power"] >= 0.8).any())
 
 
-def test_noise_level_is_estimated_from_heldout_residuals_or_given():
-    assert cb.estimate_noise(np.array([0.2, 0.05, np.nan]), "heldout") == (0.05, "heldout")
-    assert cb.estimate_noise(np.array([0.2]), 0.03) == (0.03, "given")
+def test_noise_level_from_repeats_prior_number_or_heldout():
+    assert tuple(cb.estimate_noise(np.array([0.2, 0.05, np.nan]), "heldout")) == (0.05, "heldout")
+    assert tuple(cb.estimate_noise(np.array([0.2]), 0.03)) == (0.03, "given")
     with pytest.raises(ValueError, match="heldout"):
         cb.estimate_noise(np.array([0.2]), "trials")
+    reps = (("S010", 0.04, 30, 0.03, 0.055),)
+    # auto: the participant's repeats where they exist, else the literature prior (never the misfit)
+    a = cb.estimate_noise(np.array([0.5]), "auto", "S010", reps)
+    assert (a.sigma, a.source, a.low, a.high) == (0.04, "repeats", 0.03, 0.055)
+    p = cb.estimate_noise(np.array([0.5]), "auto", "S003", reps)
+    assert (p.sigma, p.source, p.low, p.high) == (0.08, "prior", 0.05, 0.15) and "not measured here" in p.note
+    assert cb.estimate_noise(np.array([0.5]), "prior", "S010", reps).source == "prior"
+    assert cb.estimate_noise(np.array([0.5]), "repeats", "S010", reps).sigma == 0.04
+    with pytest.raises(ValueError, match="no repeat-trial noise for data set 'S003'"):
+        cb.estimate_noise(np.array([0.5]), "repeats", "S003", reps)
+    assert CalibrationSettings().noise == "auto"
+
+
+def _noisy_control(ctx, sd):
+    """A p2m7 data set without any effect, with log-normal noise of SD ``sd`` (seeded)."""
+    rng = np.random.default_rng(11)
+    F = ctx.model.strengths[None] * np.exp(rng.normal(0, 0.2, (1, ctx.model.m)))
+    f = Simulator(ctx, base_instance(ctx)).forces(F)[0]
+    return dg.BlindData("noisy", f * np.exp(rng.normal(0, sd, ctx.K)))
+
+
+def test_a_gap_three_times_the_stated_noise_is_never_consistent_with_noise(ctx_p2):
+    # noise of SD 0.24 in the data, the stated (prior) noise 0.08: the held-out gap is about 3 x the noise and must
+    # be "not explained"; with heldout (the misfit taken as the noise, before issue 32 the default) it was
+    # "consistent with noise", and now the report says the size of the gap cannot be tested
+    data = [_noisy_control(ctx_p2, 0.24)]
+    d = dg.diagnose(ctx_p2, data, _settings(replicates=19, noise="prior", power_replicates=0))[0].summary
+    assert d["noise_source"] == "prior" and d["noise_sigma"] == pytest.approx(0.08)
+    assert d["gap_over_noise"] > 3 and d["remainder_unexplained"] and d["remainder_tested"]
+    assert "not explained by any candidate" in d["remainder"] and d["p_remainder_gap"] == pytest.approx(1 / 20)
+    sens = {r["noise"]: r for r in d["sensitivity"]}
+    assert set(sens) == {"prior low", "prior (central)", "prior high"}
+    assert [r["sigma"] for r in d["sensitivity"]] == [0.05, 0.08, 0.15]
+    assert sens["prior low"]["remainder"] == "not explained"
+    h = dg.diagnose(ctx_p2, data, _settings(replicates=19, noise="heldout", power_replicates=0))[0].summary
+    assert h["noise_source"] == "heldout" and not h["remainder_tested"] and len(h["sensitivity"]) == 1
+    assert "consistent with noise" not in h["remainder"]
+    assert "cannot be tested" in h["remainder"] or "not explained" in h["remainder"]
+
+
+def test_auto_noise_uses_the_repeats_when_present(ctx_p2):
+    data = [_noisy_control(ctx_p2, 0.02)]
+    s = _settings(replicates=4, noise="auto", power_replicates=0, repeats=(("noisy", 0.02, 40, 0.016, 0.026),))
+    d = dg.diagnose(ctx_p2, data, s)[0].summary
+    assert d["noise_source"] == "repeats" and d["noise_sigma"] == pytest.approx(0.02)
+    assert [r["sigma"] for r in d["sensitivity"]] == [0.016, 0.02, 0.026]
+    assert "cannot be tested" in d["remainder"] or "not explained" in d["remainder"]   # 4 replicates: p >= 0.2
 
 
 def test_parameters_at_their_bounds_are_flagged(ctx_p2):

@@ -12,6 +12,7 @@ rule gap_diagnose:
         THESIS_TABLES,
         directions="results/geometry/directions.csv",
         measurements=gap_measurements(),
+        noise_table=lambda wildcards: (config["gap"].get("calibration") or {}).get("noise_table") or [],
     output:
         residuals="results/gap/{model}/{dataset}/residuals.csv",
         planes="results/gap/{model}/{dataset}/planes.csv",

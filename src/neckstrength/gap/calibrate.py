@@ -2,9 +2,11 @@
 
 **Null.** For each data set, noise-only data sets are simulated from its own fitted base model (the fit on
 all directions; strengths drawn from the fit's Laplace uncertainty, :func:`truth_strengths`) with log-normal
-noise of SD ``sigma``: 'heldout' = the root mean square of the log held-out
-residuals of the best single candidate (the candidate with the smallest one; base model or one effect), or a
-number given by the user (e.g. from repeat trials). The measured data set and its simulated ones are *screened*
+noise of SD ``sigma`` (:func:`estimate_noise`): the participant's trial-to-trial scatter measured from repeat
+trials (``repeats``), else a literature prior for the test-retest variability of maximal isometric neck strength
+(``prior``; 'auto' picks the first that exists), a number, or 'heldout' = the root mean square of the log
+held-out residuals of the best single candidate (the misfit counted as noise: the size of the remaining gap
+cannot then be tested). The measured data set and its simulated ones are *screened*
 alike, in one batch: the base model and every single effect on its grid, fitted from the same start point with
 the calibration's ``starts`` and ``max_iter`` on the data set's fold split, each fold choosing its grid point by
 training loss, scored by the held-out gap ``1 - D_cv``. With ``cv`` 'one_step' (the config's default) the folds are
@@ -27,8 +29,15 @@ The raw per-effect p-value ``(1 + #{delta_e^null >= delta_e}) / (R + 1)`` is rep
 **Remainder.** After the named effect (or the base model), the held-out log residuals are tested for
 structure by plane of the 3 x 3 grid (Fig. 4.2 / A.3): ``S`` = share of their sum of squares explained by plane
 means (least squares on plane indicators; scale-free, so valid with an estimated noise level), against the same
-effect's ``S`` in the null replicates. When the noise level is given (not estimated from these residuals) the
-held-out gap itself is tested too. Either significant: "the remaining gap is not explained by any candidate".
+effect's ``S`` in the null replicates. When the noise level is not estimated from these residuals (any source but
+'heldout') the held-out gap itself is tested too, against the same candidate's held-out gap in the noise-only
+replicates at that noise. Either significant: "the remaining gap is not explained by any candidate". Neither:
+"consistent with noise" only where the gap was tested and the p-value can reach ``alpha`` (``replicates`` >=
+1 / alpha - 1); else the verdict says what could not be tested (:func:`remainder_verdict`).
+
+**Sensitivity.** Where the noise has a range (the prior's low and high, or the repeats' 95% interval), the
+decision and the remainder are made again with ``replicates`` noise-only data sets at each end, screened in the
+same batch (the measured data set's screen does not depend on the noise).
 
 **Power.** For each effect and size in ``power_sizes`` (share of the way from neutral to the far bound, both
 bounds alternating over replicates for two-sided parameters), ``power_replicates`` data sets are simulated from
@@ -164,6 +173,10 @@ class Calibration:
     structure_obs: np.ndarray    # (1 + E) and plane structure of its held-out log residuals
     phi_fit: np.ndarray | None = None   # the base fit on all directions (log free strengths) the null is drawn
     f_fit: np.ndarray | None = None     # around, and its forces
+    noise: "NoiseLevel | None" = None   # where sigma comes from, and its range
+    rms_null: np.ndarray | None = None  # (R x (1 + E)) RMS log held-out residual of the null replicates
+    rms_obs: np.ndarray | None = None   # (1 + E) and of the measured data set
+    sensitivity: list = None            # [(label, Calibration at the range's end)], without power
 
     def decide(self, gap: np.ndarray) -> dict:
         """``gap``: held-out gaps ('none' first, then the effects in ``effects`` order) of one data set."""
@@ -201,21 +214,83 @@ def truth_strengths(sim: Simulator, phi_fit: np.ndarray, T: np.ndarray, sigma: f
     return phi_fit[None] + rng.normal(0.0, 1.0, (n, p)) @ L.T
 
 
-def estimate_noise(rms_heldout: np.ndarray, setting) -> tuple[float, str]:
-    """Log-normal noise SD: the given number, or the smallest held-out RMS log residual over the candidates."""
+#: Literature prior for the trial-to-trial (test-retest) log SD of maximal isometric neck strength where a
+#: participant has no repeats: (low, central, high). Sources and reasoning: docs/gap_diagnosis.md ("Noise").
+PRIOR_NOISE = (0.05, 0.08, 0.15)
+
+NOISE_SETTINGS = ("auto", "repeats", "prior", "heldout")
+
+
+@dataclass(frozen=True)
+class NoiseLevel:
+    """The noise SD of the simulated data sets, its source ('repeats', 'prior', 'given', 'heldout'), the range
+    the sensitivity table spans (nan: none) and a sentence for the report."""
+
+    sigma: float
+    source: str
+    low: float = np.nan
+    high: float = np.nan
+    note: str = ""
+
+    def __iter__(self):                  # (sigma, source), as before issue 32
+        return iter((self.sigma, self.source))
+
+
+def estimate_noise(rms_heldout: np.ndarray, setting, name: str = "", repeats=(),
+                   prior: tuple[float, float, float] = PRIOR_NOISE) -> NoiseLevel:
+    """Log-normal noise SD of data set ``name``'s simulated data (``setting``: 'auto', 'repeats', 'prior',
+    'heldout' or a number; ``repeats``: ``(name, sd, df, ci_low, ci_high)`` per data set with repeat trials)."""
     if isinstance(setting, (int, float)) and not isinstance(setting, bool):
-        return float(setting), "given"
-    if setting != "heldout":
-        raise ValueError(f"gap.calibration.noise: 'heldout' or a number, not {setting!r}")
-    return float(np.nanmin(rms_heldout)), "heldout"
+        if not setting > 0:
+            raise ValueError(f"gap.calibration.noise: a positive log SD, not {setting!r}")
+        return NoiseLevel(float(setting), "given", note="given in the config")
+    if setting not in NOISE_SETTINGS:
+        raise ValueError(f"gap.calibration.noise: one of {', '.join(NOISE_SETTINGS)} or a number, not {setting!r}")
+    if setting == "heldout":
+        return NoiseLevel(float(np.nanmin(rms_heldout)), "heldout",
+                          note="the smallest RMS log held-out residual over the candidates: the misfit counts as "
+                               "noise, so the size of the remaining gap cannot be tested")
+    rep = {str(r[0]): r for r in repeats}
+    if setting in ("repeats", "auto") and name in rep:
+        _, sd, df, lo, hi = rep[name]
+        return NoiseLevel(float(sd), "repeats", float(lo), float(hi),
+                          f"this participant's trial-to-trial scatter, pooled over the repeat trials (df {int(df)}, "
+                          f"95% interval {lo:.3f}-{hi:.3f})")
+    if setting == "repeats":
+        raise ValueError(f"gap.calibration.noise 'repeats': no repeat-trial noise for data set {name!r} "
+                         f"(gap.calibration.noise_table has {', '.join(sorted(rep)) or 'none'})")
+    lo, c, hi = (float(x) for x in prior)
+    return NoiseLevel(c, "prior", lo, hi,
+                      f"no repeat trials{' for this participant' if setting == 'auto' else ''}: the literature "
+                      f"prior for the test-retest variability of maximal isometric neck strength (central {c:g}, "
+                      f"range {lo:g}-{hi:g}; not measured here)")
+
+
+def remainder_verdict(rem: dict, cal: "Calibration", alpha: float, where: str) -> tuple[str, bool | None]:
+    """The remainder's sentence and whether it is unexplained (None: could not be tested)."""
+    gap_tested = np.isfinite(rem["p_gap"])
+    if rem["p_structure"] <= alpha or (gap_tested and rem["p_gap"] <= alpha):
+        return f"the remaining gap is not explained by any candidate: it lies in {where}", True
+    resolution = 1.0 / (len(cal.gap_null) + 1)
+    if resolution > alpha:
+        return (f"the remainder cannot be tested: {len(cal.gap_null)} noise-only replicates give p-values of at "
+                f"least {resolution:.2g} > alpha {alpha:g}"), None
+    if not gap_tested:
+        return ("the size of the remaining gap cannot be tested (the noise level was estimated from the held-out "
+                "residuals themselves, gap.calibration.noise 'heldout'); its plane structure is within the "
+                "noise-only replicates'"), None
+    return "the remaining held-out gap is consistent with noise", False
 
 
 def _truth_phis(sim_base: Simulator, phi_fit: np.ndarray, T: np.ndarray, sigma: float, cs: CalibrationSettings,
-                name: str, seed: int) -> np.ndarray:
+                name: str, seed: int, tag: str = "") -> np.ndarray:
     """Truth log strengths of a data set's simulated data sets: rows ``0..R-1`` the noise-only ones, then
     ``power_replicates`` per power size. Drawn row by row from one stream, so the first rows do not depend on
     how many power replicates follow (a diagnosis without power draws the same null)."""
     n_pow = len(cs.power_sizes) * cs.power_replicates
+    if tag:                                                # a sensitivity null: its own stream, no power rows
+        return truth_strengths(sim_base, phi_fit, T, sigma, cs.strength_spread, int(cs.replicates),
+                               derive_rng(seed, f"gap/truth/{name}/{tag}"))
     return truth_strengths(sim_base, phi_fit, T, sigma, cs.strength_spread, int(cs.replicates) + n_pow,
                            derive_rng(seed, f"gap/truth/{name}"))
 
@@ -286,20 +361,29 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
     cs: CalibrationSettings = s.calibration
     R, nd, K = int(cs.replicates), len(names), ctx.K
     E = [e.name for e in effects]
-    sig = [estimate_noise(rms_obs[i], cs.noise) for i in range(nd)]
+    sig = [estimate_noise(rms_obs[i], cs.noise, n, cs.repeats, cs.noise_prior) for i, n in enumerate(names)]
     sims, meta = [], []                                    # simulated data sets and (data set, kind, effect, size)
     sim_base = Simulator(ctx, base_instance(ctx))
     phis = {}                                              # truth log strengths per data set: (R + power reps) x p
-    for i, n in enumerate(names):
-        phis[i] = _truth_phis(sim_base, phi_fit[i], T[i], sig[i][0], cs, n, s.seed)
-        f_null = sim_base.forces(sim_base.muscles(phis[i][:R])) if R else np.zeros((0, K))
+    sens = {i: ([("low", sig[i].low), ("high", sig[i].high)] if cs.sensitivity and np.isfinite(sig[i].low)
+                else []) for i in range(nd)}
+
+    def add_null(i, n, sigma, ph, kind, tag):
+        f_null = sim_base.forces(sim_base.muscles(ph[:R])) if R else np.zeros((0, K))
         f_null = np.maximum(f_null, 1e-3 * np.median(f_fit[i]))       # a direction the draw cannot produce
-        z = derive_rng(s.seed, f"gap/null/{n}").normal(0.0, 1.0, (R, K))
+        z = derive_rng(s.seed, f"gap/null/{n}" + (f"/{tag}" if tag else "")).normal(0.0, 1.0, (R, K))
         for r in range(R):
-            sims.append(BlindData(f"{n}/null{r}", f_null[r] * np.exp(sig[i][0] * z[r])))
-            meta.append((i, "null", "", 0.0))
+            sims.append(BlindData(f"{n}/{kind}{r}", f_null[r] * np.exp(sigma * z[r])))
+            meta.append((i, kind, "", 0.0))
+
+    for i, n in enumerate(names):
+        phis[i] = _truth_phis(sim_base, phi_fit[i], T[i], sig[i].sigma, cs, n, s.seed)
+        add_null(i, n, sig[i].sigma, phis[i], "null", "")
+        for lab, sg in sens[i]:
+            tag = f"noise{sg:.6g}"
+            add_null(i, n, sg, _truth_phis(sim_base, phi_fit[i], T[i], sg, cs, n, s.seed, tag), f"null_{lab}", tag)
     if cs.power_replicates > 0:
-        ps, pm = _power_sets(ctx, names, phis, f_fit, [sg[0] for sg in sig], [list(effects)] * nd, cs, s.seed)
+        ps, pm = _power_sets(ctx, names, phis, f_fit, [sg.sigma for sg in sig], [list(effects)] * nd, cs, s.seed)
         sims += ps
         meta += pm
     for i, n in enumerate(names):                          # the measured data sets, screened alike
@@ -308,22 +392,30 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
     meta_ok = [m for m in meta if m[1] != "skip"]
     say(f"calibration: {len(sims) - nd} simulated data sets ({R} noise-only per data set, "
         f"{len(effects)} effects x {len(cs.power_sizes)} sizes x {cs.power_replicates} with an effect); noise "
-        + ", ".join(f"{n} {sg[0]:.3f} ({sg[1]})" for n, sg in zip(names, sig)))
+        + ", ".join(f"{n} {sg.sigma:.3f} ({sg.source})" for n, sg in zip(names, sig))
+        + (f"; sensitivity: {R} more at each end of the noise's range" if any(sens.values()) else ""))
     if sims:
         idx = [m[0] for m in meta_ok]
         sc = screen(ctx, sims, folds[idx], effects, s, say, workers, checkpoints)
     out = []
-    for i, n in enumerate(names):
-        rows = [j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "null"]
+
+    def null_cal(i, kind, sigma, source, jo):
+        rows = [j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == kind]
         gap_null = sc.gap[rows]
         delta_null = gap_null[:, :1] - gap_null[:, 1:]
         mu = delta_null.mean(axis=0)
         sd = np.maximum(delta_null.std(axis=0, ddof=1) if R > 1 else np.zeros(len(E)), cs.sd_floor)
         _, _, t_null, _ = maxt(delta_null, mu, sd, np.zeros(0))
+        return Calibration(sigma, source, E, delta_null, mu, sd, t_null, gap_null, sc.structure[rows],
+                           pd.DataFrame(), sc.gap[jo], sc.structure[jo], np.asarray(phi_fit[i], float).copy(),
+                           np.asarray(f_fit[i], float).copy(), rms_null=sc.rms[rows], rms_obs=sc.rms[jo])
+
+    for i, n in enumerate(names):
         jo = next(j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "observed")
-        cal = Calibration(sig[i][0], sig[i][1], E, delta_null, mu, sd, t_null, gap_null, sc.structure[rows],
-                          pd.DataFrame(), sc.gap[jo], sc.structure[jo], np.asarray(phi_fit[i], float).copy(),
-                          np.asarray(f_fit[i], float).copy())
+        cal = null_cal(i, "null", sig[i].sigma, sig[i].source, jo)
+        cal.noise = sig[i]
+        cal.sensitivity = [(lab, null_cal(i, f"null_{lab}", sg, f"{sig[i].source} {lab}", jo))
+                           for lab, sg in sens[i]]
         if cs.power_replicates > 0:
             cal.power = _power_table(cal, i, effects, cs, meta, sc.gap)
         out.append(cal)

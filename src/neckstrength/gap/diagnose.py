@@ -40,7 +40,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from neckstrength.gap.calibrate import calibrate, power_summary
+from neckstrength.gap.calibrate import NoiseLevel, calibrate, power_summary, remainder_verdict
 from neckstrength.gap.effects import Effect, GapContext, available_effects, effect_label
 from neckstrength.gap.engine import (  # noqa: F401  (BlindData, DiagnosisSettings, direction_folds: public here too)
     BlindData,
@@ -465,6 +465,25 @@ def _at_bounds(e: Effect, theta: np.ndarray) -> list[str]:
     return out
 
 
+def _calibrated_decision(cal, refined, pfull: int, alpha: float) -> tuple[str, str, dict]:
+    """The named effect (or 'none'), the decision's sentence and the maxT decision of ``cal``'s screen scores of
+    the measured data set (fitted like the null's); an effect whose all-direction fit is neutral is not named."""
+    dec = cal.decide(cal.gap_obs)
+    b = dec["best"]
+    neutral = dict(refined[b][pfull]).get(b) is None
+    pos = dec["delta"][cal.effects.index(b)] > 0
+    if dec["p_adjusted"] <= alpha and pos and not neutral:
+        return b, f"effect {b} (p = {dec['p_adjusted']:.3g} <= {alpha:g}, adjusted for {len(cal.effects)} effects)", dec
+    why = ("its fitted size on all directions is neutral" if neutral and dec["p_adjusted"] <= alpha
+           else f"best {b}, p = {dec['p_adjusted']:.3g} > {alpha:g}" if dec["p_adjusted"] > alpha
+           else f"best {b} does not improve the held-out gap")
+    return "none", f"no effect detectable ({why})", dec
+
+
+def _verdict_word(unexplained: bool | None) -> str:
+    return "not testable" if unexplained is None else "not explained" if unexplained else "consistent with noise"
+
+
 def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_params, selections, refined,
                     cv_pred, cal=None, singles=("none",)) -> DatasetDiagnosis:
     ctx, s = eng.ctx, eng.s
@@ -488,20 +507,7 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
         chosen = best_score
         decision = f"best score: {chosen} (uncalibrated: no noise-only replicates)"
     else:
-        dec = cal.decide(cal.gap_obs)                  # the screen's scores (fitted like the null's)
-        b = dec["best"]
-        neutral = dict(refined[b][pfull]).get(b) is None
-        pos = dec["delta"][cal.effects.index(b)] > 0
-        if dec["p_adjusted"] <= ca.alpha and pos and not neutral:
-            chosen = b
-            decision = (f"effect {b} (p = {dec['p_adjusted']:.3g} <= {ca.alpha:g}, adjusted for "
-                        f"{len(cal.effects)} effects)")
-        else:
-            chosen = "none"
-            why = ("its fitted size on all directions is neutral" if neutral and dec["p_adjusted"] <= ca.alpha
-                   else f"best {b}, p = {dec['p_adjusted']:.3g} > {ca.alpha:g}" if dec["p_adjusted"] > ca.alpha
-                   else f"best {b} does not improve the held-out gap")
-            decision = f"no effect detectable ({why})"
+        chosen, decision, dec = _calibrated_decision(cal, refined, pfull, ca.alpha)
         if best_score not in ("none", chosen):
             named_note = (f"best score: {best_score} (score ranking, uncalibrated; pairs are not part of the "
                           "calibrated decision)")
@@ -582,18 +588,38 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
         j = singles.index(chosen)
         st = float(cal.structure_obs[j])
         rem = cal.remainder(j, float(cal.gap_obs[j]), st)
-        unexplained = rem["p_structure"] <= ca.alpha or (np.isfinite(rem["p_gap"]) and rem["p_gap"] <= ca.alpha)
         pl_ch = _plane_table(dirs, f_ch_full / T - 1, rcv[chosen], dcv[chosen])
         where = ", ".join(f"{r.plane} (held-out mean residual {r.mean_residual_cv:+.2f})" for r in
                           pl_ch.sort_values("rms_residual_cv", ascending=False).head(2).itertuples())
-        rem_text = (f"the remaining gap is not explained by any candidate: it lies in {where}" if unexplained else
-                    "the remaining held-out gap is consistent with noise")
+        rem_text, unexplained = remainder_verdict(rem, cal, ca.alpha, where)
+        nz = cal.noise or NoiseLevel(cal.sigma, cal.noise_source)
+        rms_obs = float(cal.rms_obs[j]) if cal.rms_obs is not None else np.nan
+        rms_null_med = float(np.median(cal.rms_null[:, j])) if cal.rms_null is not None and len(cal.rms_null) \
+            else np.nan
+        sens_rows = [{"noise": f"{nz.source} (central)" if nz.source == "prior" else nz.source, "sigma": cal.sigma,
+                      "named": chosen, "p_value": dec["p_adjusted"], "best": dec["best"],
+                      "p_remainder_gap": rem["p_gap"], "p_remainder_structure": rem["p_structure"],
+                      "remainder": _verdict_word(unexplained), "gap_over_noise": rms_obs / cal.sigma}]
+        for lab, c2 in (cal.sensitivity or []):
+            ch2, _, d2 = _calibrated_decision(c2, refined, pfull, ca.alpha)
+            j2 = singles.index(ch2)
+            r2 = c2.remainder(j2, float(c2.gap_obs[j2]), float(c2.structure_obs[j2]))
+            _, u2 = remainder_verdict(r2, c2, ca.alpha, "")
+            sens_rows.append({"noise": f"{nz.source} {lab}", "sigma": c2.sigma, "named": ch2,
+                              "p_value": d2["p_adjusted"], "best": d2["best"], "p_remainder_gap": r2["p_gap"],
+                              "p_remainder_structure": r2["p_structure"], "remainder": _verdict_word(u2),
+                              "gap_over_noise": float(c2.rms_obs[j2]) / c2.sigma})
+        sens_rows.sort(key=lambda r: r["sigma"])
         pw, pws = cal.power, power_summary(cal.power, ca.power_target)
         ch_row = eff_tab.set_index("candidate").loc[chosen]
         cal_summary.update({
             "named": chosen, "p_value": dec["p_adjusted"], "best_effect_calibrated": dec["best"],
             "p_raw_best": float(dec["p_raw"][cal.effects.index(dec["best"])]), "T": dec["T"],
-            "noise_sigma": cal.sigma, "noise_source": cal.noise_source, "replicates": int(len(cal.t_null)),
+            "noise_sigma": cal.sigma, "noise_source": cal.noise_source, "noise_note": nz.note,
+            "noise_low": nz.low, "noise_high": nz.high, "rms_heldout_log_chosen": rms_obs,
+            "gap_over_noise": rms_obs / cal.sigma, "gap_over_noise_null_median": rms_null_med / cal.sigma,
+            "remainder_tested": unexplained is not None, "sensitivity": sens_rows,
+            "replicates": int(len(cal.t_null)),
             "p_resolution": 1.0 / (len(cal.t_null) + 1), "power_target": ca.power_target,
             "remainder_structure": st, "p_remainder_structure": rem["p_structure"],
             "p_remainder_gap": rem["p_gap"], "remainder_unexplained": bool(unexplained), "remainder": rem_text,

@@ -35,8 +35,14 @@ class CalibrationSettings:
 
     ``replicates`` noise-only data sets per data set (parametric bootstrap from its fitted base model; 0 = no
     calibration: the candidate with the best score is reported, without a p-value); p-values have resolution
-    ``1 / (replicates + 1)``. ``alpha``: level of the decision. ``noise``: 'heldout' (log-normal SD estimated
-    from the held-out residuals) or a number (e.g. from repeat trials). ``power_sizes``: effect sizes (share of
+    ``1 / (replicates + 1)``. ``alpha``: level of the decision. ``noise`` (log-normal SD of the simulated data,
+    :func:`neckstrength.gap.calibrate.estimate_noise`): 'auto' (the data set's repeat-trial scatter where
+    ``repeats`` has it, else the literature prior), 'repeats' (an error without), 'prior' (the central value of
+    ``noise_prior`` = (low, central, high)), a number, or 'heldout' (the smallest RMS log held-out residual: the
+    misfit counts as noise, so the size of the remaining gap cannot be tested). ``repeats``: per data set
+    ``(name, log SD, df, ci_low, ci_high)`` from the trial import's ``noise.csv``. ``sensitivity``: the decision
+    again at the ends of the noise's range (the prior's low and high, or the repeats' 95% interval) with
+    ``replicates`` noise-only data sets each. ``power_sizes``: effect sizes (share of
     the way from neutral to the far bound) at which the power is simulated, ``power_replicates`` data sets per
     effect and size, ``power_target`` the share identified that counts as detectable. ``strength_spread``: SD of
     individual log strengths, for the strengths the directions leave undetermined in the simulated truths.
@@ -44,7 +50,10 @@ class CalibrationSettings:
 
     replicates: int = 39
     alpha: float = 0.05
-    noise: str | float = "heldout"
+    noise: str | float = "auto"
+    noise_prior: tuple[float, float, float] = (0.05, 0.08, 0.15)
+    repeats: tuple[tuple, ...] = ()
+    sensitivity: bool = True
     power_sizes: tuple[float, ...] = (0.25, 0.5, 1.0)
     power_replicates: int = 5
     power_target: float = 0.8

@@ -158,15 +158,19 @@ def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
              f"{len(diag.power_summary)} effects; {s['replicates']} noise-only replicates simulated from this data "
              f"set's fitted base model, so p-values have resolution {s['p_resolution']:.3g}); the raw p-value of "
              f"the best effect `{s['best_effect_calibrated']}` alone is {s['p_raw_best']:.3g}.",
-             f"- **Noise level** of the replicates: log-normal SD {s['noise_sigma']:.3f} ({s['noise_source']}"
-             + (": the smallest RMS log held-out residual over the candidates" if s['noise_source'] == "heldout"
-                else ": given in the config") + ").",
+             f"- **Noise level** of the replicates: log-normal SD {s['noise_sigma']:.3f}, source "
+             f"`{s['noise_source']}`" + (f": {s['noise_note']}" if s.get("noise_note") else "") + ".",
              f"- **Remainder**: {s['remainder']} (plane structure of the held-out residuals "
              f"{s['remainder_structure']:.2f},"
              f" p = {s['p_remainder_structure']:.3g}"
-             + (f"; held-out gap p = {s['p_remainder_gap']:.3g}" if np.isfinite(s.get('p_remainder_gap', np.nan))
+             + (f"; held-out gap p = {s['p_remainder_gap']:.3g} against noise-only replicates at SD "
+                f"{s['noise_sigma']:.3f}" if np.isfinite(s.get('p_remainder_gap', np.nan))
                 else "; the held-out gap itself is not tested because the noise level was estimated from it")
-             + ").", "",
+             + "). Held-out RMS log residual of the named candidate "
+             f"{s.get('rms_heldout_log_chosen', np.nan):.3f} = {s.get('gap_over_noise', np.nan):.1f} x the noise "
+             f"(noise-only replicates: median {s.get('gap_over_noise_null_median', np.nan):.1f} x; held-out "
+             "residuals exceed the noise because the strengths are fitted without the held-out directions).", "",
+             *_sensitivity_lines(s),
              "### Power per effect", "",
              "Smallest simulated effect size (share of the way from neutral to the far bound of its range) that this "
              f"diagnosis names in at least {100 * s['power_target']:.0f}% of the data sets simulated from this "
@@ -174,6 +178,20 @@ def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
     lines += [f"- `{r.effect}`: {r.statement}" for r in diag.power_summary.itertuples()]
     lines += ["", markdown_table(diag.power), ""]
     return lines
+
+
+def _sensitivity_lines(s: dict) -> list[str]:
+    """The decision at the ends of the noise's range (summary 'sensitivity')."""
+    rows = s.get("sensitivity") or []
+    if len(rows) < 2:
+        return []
+    tab = pd.DataFrame(rows)[["noise", "sigma", "named", "p_value", "best", "remainder", "p_remainder_gap",
+                              "p_remainder_structure", "gap_over_noise"]]
+    return ["### Sensitivity to the noise level", "",
+            "The same decision with noise-only replicates at the ends of the noise's range (the prior's low and "
+            "high values, or the repeat-trial estimate's 95% interval; as many replicates as the main decision, no "
+            "power); `gap_over_noise`: held-out RMS log residual of the named candidate / noise SD.", "",
+            markdown_table(tab), ""]
 
 
 def _discrimination_lines(diag: DatasetDiagnosis) -> list[str]:

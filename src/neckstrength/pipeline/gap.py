@@ -57,6 +57,7 @@ def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summar
                      "unreachable": ";".join(s["unreachable"]) or "-", "chosen": s["chosen"],
                      "chosen_theta": s["chosen_theta"], "p_value": s.get("p_value", np.nan),
                      "decision": s.get("decision", ""), "noise_sigma": s.get("noise_sigma", np.nan),
+                     "noise_source": s.get("noise_source", ""), "gap_over_noise": s.get("gap_over_noise", np.nan),
                      "remainder": s.get("remainder", ""), "p_best": s["p_best_chosen"],
                      "gap_before": s["gap_before"], "gap_after": s["gap_after"],
                      "rms_before": s["rms_before"], "rms_after": s["rms_after"],
@@ -76,6 +77,7 @@ def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summar
                    "model_too_weak_in": df["model_too_weak_in"].mode().iloc[0],
                    "model_too_strong_in": df["model_too_strong_in"].mode().iloc[0], "worst_directions": "",
                    "unreachable": "", "chosen": df["chosen"].mode().iloc[0], "chosen_theta": "", "decision": "",
+                   "noise_source": "",
                    "remainder": ""})
     df = pd.concat([df, pd.DataFrame([pooled])], ignore_index=True)
     atomic_write_csv(df, out_csv, [f"gap diagnosis pooled over data sets ({model_name}): where / which / how far, "
