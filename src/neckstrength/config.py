@@ -362,7 +362,11 @@ def gap_settings_text(config: Mapping, s: DiagnosisSettings) -> str:
                       f"- reach envelope: {s.reach_samples} samples, {s.reach_iter} gradient iterations",
                       f"- calibration: {s.calibration.replicates} noise-only replicates (p resolution "
                       f"{1 / (s.calibration.replicates + 1):.3g}), alpha {s.calibration.alpha}, noise "
-                      f"{s.calibration.noise}; power at sizes {list(s.calibration.power_sizes)} with "
+                      f"{s.calibration.noise} (prior low / central / high "
+                      f"{' / '.join(f'{x:g}' for x in s.calibration.noise_prior)}; repeat-trial noise for "
+                      f"{', '.join(r[0] for r in s.calibration.repeats) or 'no data set'}; sensitivity "
+                      f"{'on' if s.calibration.sensitivity else 'off'}); power at sizes "
+                      f"{list(s.calibration.power_sizes)} with "
                       f"{s.calibration.power_replicates} replicates each (target {s.calibration.power_target}); "
                       f"screen (measured and simulated data alike): {s.calibration.starts} start(s), max_iter "
                       f"{s.calibration.max_iter}",

@@ -27,7 +27,8 @@ from neckstrength.trials.select import fatigue_table, select_trials
 #: output keys -> file names (the pipeline rule and the CLI use the same names)
 OUTPUT_FILES = {"max_force": "max_force.csv", "activation": "activation.csv",
                 "activation_by_muscle": "activation_by_muscle.csv", "trials": "quality_trials.csv",
-                "exclusions": "exclusions.csv", "fatigue": "fatigue.csv", "noise": "noise.csv", "report": "quality_report.md",
+                "exclusions": "exclusions.csv", "fatigue": "fatigue.csv", "noise": "noise.csv",
+                "report": "quality_report.md",
                 "figure": "fig_quality.png", "summary": "summary.json"}
 
 
