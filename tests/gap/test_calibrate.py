@@ -468,3 +468,21 @@ def test_direction_tolerance_fits_of_a_data_set_do_not_depend_on_the_batch(ctx_s
         assert np.allclose(alone[1], other[1], rtol=1e-6, atol=1e-9)
         assert np.allclose(alone[0], other[0], rtol=0.0, atol=1e-5)
     assert all(np.allclose(batch[n][1], rev[n][1], rtol=1e-6, atol=1e-9) for n in batch)
+
+
+def test_calibration_settings_noise_from_the_config(tmp_path):
+    from neckstrength.config import calibration_settings
+
+    t = tmp_path / "noise.csv"
+    pd.DataFrame({"participant": ["P01", "P02"], "noise_log_sd": [0.04, np.nan], "df": [18, 0],
+                  "ci_low": [0.03, np.nan], "ci_high": [0.06, np.nan]}).to_csv(t, index=False)
+    cs = calibration_settings({"gap": {"calibration": {"replicates": 9, "noise_table": str(t),
+                                                       "noise_prior": {"low": 0.04, "central": 0.07, "high": 0.2}}}})
+    assert cs.noise == "auto" and cs.noise_prior == (0.04, 0.07, 0.2) and cs.sensitivity
+    assert cs.repeats == (("P01", 0.04, 18, 0.03, 0.06),)            # P02 has no repeats: not listed
+    assert cb.estimate_noise(np.array([0.5]), cs.noise, "P02", cs.repeats, cs.noise_prior).sigma == 0.07
+    for bad in ("trials", -0.1, True):
+        with pytest.raises(ValueError, match="gap.calibration.noise"):
+            calibration_settings({"gap": {"calibration": {"noise": bad}}})
+    with pytest.raises(ValueError, match="noise_prior"):
+        calibration_settings({"gap": {"calibration": {"noise_prior": {"low": 0.2, "central": 0.1}}}})
