@@ -299,6 +299,43 @@ def deficit_definition(config: Mapping):
     return DeficitDefinition(group=tuple(d.get("group", ["mf"])), threshold=float(d.get("threshold", 0.6)))
 
 
+def decision_settings(config: Mapping, **over):
+    """``clinician.decision``: the deficit decision's hypotheses, noise, prevalence and samplers (issue 31); keys
+    the config leaves out keep the dataclass's defaults (the schema's, tests/sequential/test_decision.py)."""
+    from dataclasses import fields
+
+    from neckstrength.sequential.decision import DecisionSettings
+
+    d = dict(config.get("clinician", {}).get("decision", {}))
+    names = {f.name for f in fields(DecisionSettings)}
+    unknown = set(d) - names
+    if unknown:
+        raise ValueError(f"clinician.decision: unknown settings {sorted(unknown)}; known: {sorted(names)}")
+    for k in ("group", "deficit_range"):
+        if k in d:
+            d[k] = tuple(d[k])
+    d.update(over)
+    return DecisionSettings(**d)
+
+
+def decision_study_settings(config: Mapping, model_name: str):
+    """``clinician.decision_study`` -> (DecisionStudySettings, n_candidates per hypothesis of the study)."""
+    from dataclasses import fields
+
+    from neckstrength.sequential.cohort import CohortSettings
+    from neckstrength.sequential.decision_study import DecisionStudySettings
+
+    d = dict(config.get("clinician", {}).get("decision_study", {}))
+    n_cand = int(d.pop("n_candidates", 1000))
+    ck = {f.name for f in fields(CohortSettings)}
+    cohort = CohortSettings(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items() if k in ck})
+    rest = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items() if k not in ck}
+    emg = tuple(config.get("chapter6", {}).get("emg_groups", {}).get(model_name, []))
+    study = DecisionStudySettings(cohort=cohort, emg_groups=emg if any("emg" in p for p in
+                                                                       rest.get("protocols", ())) else (), **rest)
+    return study, n_cand
+
+
 def session_defaults(config: Mapping, model_name: str) -> dict:
     """``clinician.session.<model>``: the clinician session's posterior ('joint' or 'marginal', the thesis's
     scheme), criterion and candidate count for ``model_name`` (empty: the thesis's scheme with chapter6 sizes)."""

@@ -41,6 +41,52 @@ rule clinician_deficit:
         "../scripts/clinician_deficit.py"
 
 
+rule clinician_decision:
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+        directions="results/geometry/directions.csv",
+    output:
+        runs="results/clinician/{named}/decision_runs.csv",
+        roc=report(
+            "results/clinician/{named}/decision_roc.csv",
+            caption="../report/clinician_decision.rst",
+            category="Clinician loop",
+            labels={"model": "{named}", "table": "deficit decision: ROC after t tests"},
+        ),
+        sequential=report(
+            "results/clinician/{named}/decision_sequential.csv",
+            caption="../report/clinician_decision.rst",
+            category="Clinician loop",
+            labels={"model": "{named}", "table": "deficit decision: the stopping rule"},
+        ),
+        reliability=report(
+            "results/clinician/{named}/decision_reliability.csv",
+            caption="../report/clinician_decision.rst",
+            category="Clinician loop",
+            labels={"model": "{named}", "table": "deficit decision: reliability of P(deficit)"},
+        ),
+        fig=report(
+            "results/clinician/{named}/fig_decision.png",
+            caption="../report/clinician_decision.rst",
+            category="Clinician loop",
+            labels={"model": "{named}", "figure": "deficit decision: ROC, reliability, P by test"},
+        ),
+    params:
+        settings=settings("clinician.decision", "clinician.decision_study", "chapter6.bin_range_sd",
+            "chapter6.emg_band", "chapter6.emg_groups.{named}", "chapter6.joint", "chapter6.n_bins",
+            "chapter6.prior_sd_rel", "data.model_dir", "data.thesis_dir", "model", "seed"),
+    log:
+        "logs/clinician/{named}/decision.log",
+    threads: 2    # participants in forked processes (same numbers for any count)
+    resources:
+        mem_mb=3000,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/clinician_decision.py"
+
+
 rule clinician:
     input:
         clinician_outputs_list(),

@@ -247,6 +247,8 @@ def clinician_outputs_list():
     out = []
     for named in config["clinician"]["models"]:
         out += [f"results/clinician/{named}/{f}" for f in ("deficit_summary.csv", "fig_deficit.png")]
+        out += [f"results/clinician/{named}/{f}" for f in ("decision_roc.csv", "decision_sequential.csv",
+                                                             "decision_reliability.csv", "fig_decision.png")]
     return out
 
 

@@ -182,3 +182,85 @@ def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs
         for f in Path(runs_path).parent.glob(Path(runs_path).name + ".partial*.csv"):
             f.unlink()
     return summ
+
+
+def clinician_decision(config: Mapping, model_name: str, directions_csv, out_runs, out_roc, out_sequential,
+                       out_reliability, out_fig, n_threads: int = 1) -> pd.DataFrame:
+    """The deficit decision measured on simulated patients (issue 31 item 4): ROC, the stopping rule, reliability.
+
+    Participants run in ``n_threads`` forked processes; each finished participant is appended to
+    ``<out_runs>.partial.csv`` with a signature of the settings, so an interrupted run resumes where it stopped."""
+    from neckstrength.config import decision_settings, decision_study_settings
+    from neckstrength.gap.forked import fork_map
+    from neckstrength.sequential.decision_plots import fig_decision_study
+    from neckstrength.sequential.decision_study import reliability_table, roc_table, run_decision_study, \
+        sequential_table
+
+    model = model_from_config(full_model_from_config(config), config, model_name)
+    d, U = model_directions_table(model, load_directions(directions_csv))
+    study, n_cand = decision_study_settings(config, model_name)
+    decision = decision_settings(config, n_candidates=n_cand)
+    joint = joint_settings(config)
+    seed = int(config["seed"])
+    f0 = model.strengths
+    sig = _signature(decision, study, joint, None, seed, model_name)
+    partial = Path(str(out_runs) + ".partial.csv")
+    done = _read_partials(out_runs, sig)
+    finished = set() if done.empty else set(done["participant"])
+    n = study.cohort.n_deficit + study.cohort.n_normal
+    todo = [i for i in range(n) if i not in finished]
+    print(f"decision study of {model_name}: {decision.label()}\n{decision}\n{study}\nseed {seed}; streams "
+          f"'decision/{model_name}/<truth|candidates>' + participant index; {len(finished)} of {n} participants "
+          f"done before", flush=True)
+
+    def rng_for(what, i):
+        return derive_rng(seed, f"decision/{model_name}/{what}", i)
+
+    dirs, fs = list(d["name"]), d["force_scale"].to_numpy(float)
+
+    def one(i):
+        return run_decision_study(model, dirs, U, fs, f0, decision, joint, study, rng_for, participants=[i],
+                                  progress=lambda s: print(s, flush=True))
+
+    t0 = time.time()
+    for _, rows in fork_map(one, todo, max(1, int(n_threads))):
+        new = not partial.exists()
+        with partial.open("a") as fh:
+            if new:
+                fh.write(f"# signature {sig}\n")
+            rows.to_csv(fh, header=new, index=False, float_format="%.8g")
+    runs = _read_partials(out_runs, sig).drop_duplicates(["participant", "protocol", "t"])
+    runs = runs.sort_values(["participant", "protocol", "t"], kind="stable").reset_index(drop=True)
+    cps = tuple(t for t in study.checkpoints if t <= study.n_max)
+    roc = roc_table(runs, cps, study.false_alarm, decision.p_decide)
+    per, seq = sequential_table(runs, decision.p_decide)
+    rel = reliability_table(runs, cps)
+    hdr = [f"deficit decision on {model_name} (issue 31): {decision.label()}; per hypothesis {decision.n_candidates} "
+           f"candidates, resample-move below ESS {decision.resample_ess}, {decision.n_moves} MH moves; seed {seed}",
+           f"simulated patients (truths apart from the priors, neckstrength.sequential.cohort): "
+           f"{study.cohort.n_deficit} with each side of {'+'.join(decision.group)} at "
+           f"{study.cohort.deficit_range[0]:.0%}-{study.cohort.deficit_range[1]:.0%}, {study.cohort.n_normal} normal "
+           f"(>= {study.cohort.normal_floor:.0%}); groups log-sd {study.cohort.group_log_sd}, sides "
+           f"{study.cohort.side_log_sd}; force noise {study.cohort.noise}; tests in decision_eig order"]
+    atomic_write_csv(runs, out_runs, hdr, float_format="%.6g")
+    atomic_write_csv(roc, out_roc, hdr + [f"auc: ROC area of log BF (Hanley-McNeil se); sensitivity_at_fa: best "
+                                          f"sensitivity at false alarms <= {study.false_alarm} with the threshold "
+                                          f"chosen on these normals (optimistic); rule_*: P(deficit) >= "
+                                          f"{decision.p_decide} after t tests (Wilson 95% intervals)"],
+                     float_format="%.4g")
+    atomic_write_csv(seq, out_sequential, hdr + [f"the stopping rule: decided at the first test with P >= "
+                                                 f"{decision.p_decide} or <= {1 - decision.p_decide:.2g}"],
+                     float_format="%.4g")
+    atomic_write_csv(per, Path(out_sequential).with_name("decision_per_run.csv"), hdr, float_format="%.6g")
+    atomic_write_csv(rel, out_reliability, hdr + ["reliability of P(deficit) at the cohort's share of deficits "
+                                                  f"({study.cohort.n_deficit / n:.0%}; prevalence setting "
+                                                  f"{decision.prevalence:.0%}); Jeffreys 95% intervals"],
+                     float_format="%.4g")
+    fig_decision_study(runs, rel, cps, decision.p_decide, out_fig,
+                       f"deficit decision on {model_name}-simulated patients: {study.cohort.n_deficit} deficit, "
+                       f"{study.cohort.n_normal} normal; noise {study.cohort.noise:.0%}; seed {seed}")
+    print(roc.to_string(index=False), flush=True)
+    print(seq.to_string(index=False), flush=True)
+    print(f"done in {time.time() - t0:.0f} s", flush=True)
+    partial.unlink(missing_ok=True)
+    return roc

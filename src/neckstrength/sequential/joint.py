@@ -133,13 +133,21 @@ class JointPosterior:
         self.n_resamples = 0
         self.n_lps = 0
         self.last_acceptance = float('nan')
-        self.F = sample_prior(self.f0, settings.prior_sd_rel, settings.n_candidates, rng)
+        # log of the evidence (marginal likelihood of the kernel likelihood) of the tests so far, and its Monte
+        # Carlo variance (a heuristic: the sum of the increments' genealogy variances, :meth:`_advance_loglik`)
+        self.log_evidence = 0.0
+        self.log_evidence_var = 0.0
+        self.F = self._draw_prior(settings.n_candidates)
         self.ancestor = np.arange(len(self.F))   # index of each candidate's draw at the last fresh draw (mc_se)
         self.log_iw = np.zeros(len(self.F))
         self.W = self._wrenches(self.F)
         self.loglik = np.zeros(len(self.F))
 
     # -- densities
+    def _draw_prior(self, n: int) -> np.ndarray:
+        """``n`` draws from the prior p_0 (a subclass with another prior overrides this and :meth:`log_prior`)."""
+        return sample_prior(self.f0, self.settings.prior_sd_rel, n, self.rng)
+
     def log_prior(self, F: np.ndarray) -> np.ndarray:
         """log p_0 (truncated normal per muscle, redrawn below 0 as :func:`sample_prior`)."""
         z = (F - self.f0) / self.sd
@@ -281,12 +289,35 @@ class JointPosterior:
                 else:
                     hi = mid
             t["phi"] = lo
-            self.loglik = self._loglik_all()
+            self._advance_loglik()
             self.resample()
         else:
             t["phi"] = 1.0
-        self.loglik = self._loglik_all()
+        self._advance_loglik()
         t["ess_share"] = self.ess_share()
+
+    def _advance_loglik(self) -> None:
+        """Recompute the log-likelihood after a test's phi changed, and add the change's evidence increment
+        ``log sum_k wbar_k exp(l'_k - l_k)`` (``wbar`` the current normalised weights: the sequential Monte Carlo
+        estimate of the marginal likelihood, Del Moral, Doucet & Jasra 2006) to :attr:`log_evidence`. Its Monte
+        Carlo variance is added to :attr:`log_evidence_var` as ``(se / mean)^2`` of the incremental weights, the se
+        from the candidates' genealogy (:meth:`mc_se`); the increments are treated as independent, so the total is
+        a heuristic (checked against independent candidate sets in docs/clinician.md)."""
+        new = self._loglik_all()
+        d = new - self.loglik
+        lw0 = self.log_iw + self.loglik
+        ok = np.isfinite(lw0)
+        if ok.any():
+            w = self.weights()
+            dm = float(d[ok].max())
+            g = np.where(ok, np.exp(d - dm), 0.0)
+            mean = float(w @ g)
+            if mean > 0:
+                self.log_evidence += math.log(mean) + dm
+                self.log_evidence_var += (self.mc_se(g) / mean) ** 2
+            else:
+                self.log_evidence = -math.inf
+        self.loglik = new
 
     def _loglik_all(self, exclude: dict | None = None) -> np.ndarray:
         out = np.zeros(len(self.F))
@@ -308,7 +339,7 @@ class JointPosterior:
         Lc = np.linalg.cholesky(s.inflate ** 2 * C)
         n_prior = self.rng.binomial(N, s.defensive)
         Yn = mu + self.rng.standard_normal((N - n_prior, m)) @ Lc.T
-        F = np.vstack([np.exp(Yn), sample_prior(self.f0, s.prior_sd_rel, n_prior, self.rng)])
+        F = np.vstack([np.exp(Yn), self._draw_prior(n_prior)])
         Yf = np.log(F)
         Z = np.linalg.solve(Lc, (Yf - mu).T).T
         log_ln = (-0.5 * (Z ** 2).sum(axis=1) - np.log(np.diag(Lc)).sum() - 0.5 * m * math.log(2 * math.pi)

@@ -130,6 +130,7 @@ class JointState:
                             "loglik": post.loglik.copy(), "tests": [dict(t) for t in post.tests],
                             "n_resamples": post.n_resamples, "n_lps": post.n_lps,
                             "last_acceptance": post.last_acceptance,
+                            "log_evidence": post.log_evidence, "log_evidence_var": post.log_evidence_var,
                             "rng": copy.deepcopy(post.rng.bit_generator.state)})
         try:
             post.update(p.direction, p.force, p.activations)
@@ -150,6 +151,7 @@ class JointState:
         post.ancestor = s["ancestor"]
         post.tests = s["tests"]
         post.n_resamples, post.n_lps, post.last_acceptance = s["n_resamples"], s["n_lps"], s["last_acceptance"]
+        post.log_evidence, post.log_evidence_var = s["log_evidence"], s["log_evidence_var"]
         post.rng.bit_generator.state = s["rng"]
 
     # -- proposals

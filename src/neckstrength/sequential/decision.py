@@ -1,0 +1,345 @@
+"""Is this patient's deep extensor weak? The deficit decision as a clinic makes it (issue 31).
+
+Two hypotheses about the strength vector ``f`` of a reduced model (muscle ``j`` of the group ``G``, both sides):
+
+- **normal** ``H_N``: every muscle varies as the population does, ``f_j ~ N(f0_j, (s f0_j)^2)`` truncated to
+  ``f_j > 0``, and the group's muscles at least ``hi f0_j`` (truncated to ``[hi f0_j, inf)``);
+- **deficit** ``H_D``: the group's muscles ``f_j ~ U(lo f0_j, hi f0_j)`` each (the stated prior on the deficit's
+  size, default 20-60% of normal), every other muscle as under ``H_N``.
+
+Both priors are proper and normalised, so their evidences are comparable. The likelihood of the forces is the
+Gaussian measurement error of the relative force with sd ``noise`` (the kernel of
+:class:`~neckstrength.sequential.joint.JointPosterior` with ``noise_rel = noise``, i.e. the kernel width *is* the
+measurement noise, not twice it), the same under both hypotheses, so its normalising constant cancels.
+
+Each hypothesis has its own sampler, a :class:`HypothesisPosterior` (the joint posterior's adaptive sequential
+Monte Carlo: tempering, resample-move, restricted to that hypothesis's prior), so the deficit region is
+represented by as many candidates as the normal one whatever the forces say. The evidence ``Z_h = p(y | H_h)`` is
+the product of the samplers' incremental weights (:attr:`JointPosterior.log_evidence`), the Bayes factor
+``BF = Z_D / Z_N``, and with the clinician's prior prevalence ``pi``
+
+    P(deficit | y) = pi BF / (pi BF + 1 - pi).
+
+The decision: "deficit" when ``P >= p_decide``, "no deficit" when ``P <= 1 - p_decide``, "undecided" otherwise;
+a session stops when decided or when the test budget is spent. The Monte Carlo error of ``log BF`` is the sum of the
+samplers' evidence variances (a heuristic; compared with independent candidate sets in docs/clinician.md).
+How well the rule decides (ROC, sensitivity at a 5% false-alarm rate, reliability) is measured on simulated
+participants by :func:`neckstrength.sequential.decision_study.run_decision_study`.
+
+The next test (``decision_eig``): the mutual information between the hypothesis and the next measurement,
+``I(H; y_i) = H(y_i) - sum_h P(h) H(y_i | h)``, each predictive a weighted histogram of the candidates' log forces
+convolved with the noise.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+from scipy.special import log_ndtr, ndtr, ndtri
+
+from neckstrength.model.reduction import ReducedModel
+from neckstrength.sequential.joint import JointPosterior, JointSettings
+
+DECISIONS = ("deficit", "no deficit", "undecided")
+
+
+@dataclass(frozen=True)
+class DecisionSettings:
+    """The deficit decision's choices (config ``clinician.decision``; none of them is in the thesis)."""
+
+    group: tuple[str, ...] = ("mf",)            # the deep extensors of s3m24 (multifidus, both sides)
+    deficit_range: tuple[float, float] = (0.2, 0.6)   # H_D: each side U(lo, hi) x normal
+    population_sd: float = 0.3                  # population variation of every muscle (sd / normal; Chapter 6's prior)
+    noise: float = 0.05                         # measurement noise: sd of the relative force error
+    noise_source: str = "stated default"        # where ``noise`` comes from (printed with the answer)
+    prevalence: float = 0.5                     # prior P(deficit) the clinician sets
+    p_decide: float = 0.95                      # decide when P >= p_decide (deficit) or P <= 1 - p_decide (none)
+    n_candidates: int = 2000                    # per hypothesis
+    # each hypothesis's sampler (benchmarks/bench_decision.py: log BF of 'weak' over seeds against these)
+    resample_ess: float = 0.3                   # resample-move when the ESS falls below this share
+    n_moves: int = 10                           # Metropolis-Hastings steps per resample
+    max_resamples: int = 50                     # tempering steps per test
+    n_ybins: int = 128                          # predictive histogram of decision_eig
+
+    def __post_init__(self):
+        lo, hi = self.deficit_range
+        if not 0 < lo < hi < 1:
+            raise ValueError(f"clinician.decision.deficit_range must be 0 < low < high < 1, got {self.deficit_range}")
+        if not 0 < self.prevalence < 1:
+            raise ValueError(f"clinician.decision.prevalence must be in (0, 1), got {self.prevalence}")
+        if not 0.5 < self.p_decide < 1:
+            raise ValueError(f"clinician.decision.p_decide must be in (0.5, 1), got {self.p_decide}")
+        if self.noise <= 0 or self.population_sd <= 0:
+            raise ValueError("clinician.decision.noise and population_sd must be positive")
+        if not 0 < self.resample_ess <= 1 or self.n_moves < 1 or self.max_resamples < 1:
+            raise ValueError("clinician.decision: resample_ess in (0, 1], n_moves >= 1, max_resamples >= 1")
+        if self.n_candidates < 100:
+            raise ValueError(f"clinician.decision.n_candidates must be >= 100, got {self.n_candidates}")
+        if not self.group:
+            raise ValueError("clinician.decision.group is empty")
+
+    def label(self) -> str:
+        lo, hi = self.deficit_range
+        return (f"deficit = each side of {'+'.join(self.group)} at {lo:.0%}-{hi:.0%} of normal (uniform); normal = "
+                f"at least {hi:.0%}, every muscle with population sd {self.population_sd:.0%}; noise "
+                f"{self.noise:.0%} ({self.noise_source}); prior prevalence {self.prevalence:.0%}")
+
+    def group_indices(self, muscle_names: Sequence[str]) -> np.ndarray:
+        keep = set(self.group)
+        return np.array([j for j, n in enumerate(muscle_names)
+                         if n in keep or (n.endswith(("-R", "-L")) and n[:-2] in keep)], dtype=int)
+
+
+class HypothesisPrior:
+    """The prior of one hypothesis: per muscle a normal ``N(f0, (s f0)^2)`` truncated to ``[a_j, inf)`` (``a_j`` =
+    0, or ``hi f0_j`` for the group under H_N), or for the group under H_D a uniform on ``[lo f0_j, hi f0_j]``."""
+
+    def __init__(self, f0: np.ndarray, sd_rel: float, group_idx: np.ndarray, deficit_range: tuple[float, float],
+                 deficit: bool):
+        self.f0 = np.asarray(f0, float)
+        self.sd = sd_rel * self.f0
+        m = len(self.f0)
+        lo, hi = deficit_range
+        self.uniform = np.zeros(m, bool)
+        self.low = np.zeros(m)
+        if deficit:
+            self.uniform[group_idx] = True
+            self.low[group_idx] = lo * self.f0[group_idx]
+            self.high = np.where(self.uniform, hi * self.f0, np.inf)
+        else:
+            self.low[group_idx] = hi * self.f0[group_idx]
+            self.high = np.full(m, np.inf)
+        self.a = (self.low - self.f0) / self.sd              # standardised lower bound of the normal muscles
+        self.log_tail = log_ndtr(-self.a)                   # log P(z >= a)
+        self.log_norm = np.where(self.uniform, -np.log(np.where(self.uniform, self.high - self.low, 1.0)),
+                                 -0.5 * math.log(2 * math.pi) - np.log(self.sd) - self.log_tail)
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        u = rng.random((n, len(self.f0)))
+        p0 = ndtr(self.a)
+        z = ndtri(p0 + u * (1.0 - p0))
+        F = np.where(self.uniform, self.low + u * (np.where(self.uniform, self.high, 0.0) - self.low),
+                     self.f0 + self.sd * z)
+        return np.maximum(F, np.where(self.uniform, self.low, np.nextafter(self.low, np.inf)))
+
+    def log_pdf(self, F: np.ndarray) -> np.ndarray:
+        F = np.atleast_2d(F)
+        z = (F - self.f0) / self.sd
+        lp = np.where(self.uniform, 0.0, -0.5 * z ** 2) + self.log_norm
+        inside = (F >= self.low) & (F <= self.high) & (F > 0)
+        return np.where(np.all(inside, axis=1), lp.sum(axis=1), -np.inf)
+
+
+class HypothesisPosterior(JointPosterior):
+    """The joint posterior restricted to one hypothesis's prior (:class:`HypothesisPrior`)."""
+
+    def __init__(self, model: ReducedModel, directions: Sequence[str], U: np.ndarray, force_scale: np.ndarray,
+                 f0: np.ndarray, settings: JointSettings, prior: HypothesisPrior, rng: np.random.Generator,
+                 n_threads: int = 1, cache=None):
+        self.prior = prior
+        super().__init__(model, directions, U, force_scale, f0, settings, rng, n_threads=n_threads, cache=cache)
+
+    def _draw_prior(self, n: int) -> np.ndarray:
+        return self.prior.sample(n, self.rng)
+
+    def log_prior(self, F: np.ndarray) -> np.ndarray:
+        return self.prior.log_pdf(F)
+
+    def resample(self) -> None:
+        """Standard resample-move (Chopin 2002): multinomial resampling of the current candidates by weight, then
+        ``n_moves`` Metropolis-Hastings steps on the current target. Unlike :meth:`JointPosterior.resample` no fresh
+        candidates are drawn from a fitted log-normal, which on the narrow, curved posteriors of 5% noise lost
+        the high-likelihood region in some runs (log Bayes factors of one data set differing by > 100 between
+        seeds); keeping the candidates keeps it."""
+        self._move(max(1, self.settings.n_moves))
+        self.n_resamples += 1
+
+
+def _snapshot(post: JointPosterior) -> dict:
+    return {"F": post.F.copy(), "ancestor": post.ancestor.copy(), "W": post.W.copy(), "log_iw": post.log_iw.copy(),
+            "loglik": post.loglik.copy(), "tests": [dict(t) for t in post.tests], "n_resamples": post.n_resamples,
+            "n_lps": post.n_lps, "last_acceptance": post.last_acceptance, "log_evidence": post.log_evidence,
+            "log_evidence_var": post.log_evidence_var, "rng": copy.deepcopy(post.rng.bit_generator.state)}
+
+
+def _restore(post: JointPosterior, s: dict) -> None:
+    post.F, post.W, post.log_iw, post.loglik = s["F"], s["W"], s["log_iw"], s["loglik"]
+    post.ancestor, post.tests = s["ancestor"], s["tests"]
+    post.n_resamples, post.n_lps, post.last_acceptance = s["n_resamples"], s["n_lps"], s["last_acceptance"]
+    post.log_evidence, post.log_evidence_var = s["log_evidence"], s["log_evidence_var"]
+    post.rng.bit_generator.state = s["rng"]
+
+
+class DeficitDecision:
+    """The two hypotheses' samplers for one patient, updated one measurement at a time, with undo.
+
+    ``push(direction, force, activations=None)`` adds a test to both; ``undo()`` removes the last one (both samplers'
+    candidates and random states restored: undo-then-measure equals a replay); ``p_deficit()``, ``log_bf()``,
+    ``log_bf_se()``, ``decision()``; ``propose()`` scores the remaining tests by ``decision_eig``; ``estimate()`` is
+    the posterior mean / sd per muscle of the mixture of the two hypotheses.
+    """
+
+    def __init__(self, model: ReducedModel, directions: Sequence[str], U: np.ndarray, force_scale: np.ndarray,
+                 f0: np.ndarray, settings: DecisionSettings, joint: JointSettings, rng: np.random.Generator,
+                 n_threads: int = 1, cache=None):
+        from neckstrength.wrench.batched import BasisCache
+
+        self.model = model
+        self.settings = settings
+        self.f0 = np.asarray(f0, float)
+        self.gidx = settings.group_indices(model.muscle_names)
+        if not len(self.gidx):
+            raise ValueError(f"deficit group {settings.group} has no muscle in {model.name} "
+                             f"({', '.join(model.muscle_names)})")
+        js = replace(joint, n_candidates=settings.n_candidates, prior_sd_rel=settings.population_sd,
+                     noise_rel=settings.noise, resample_ess=settings.resample_ess, n_moves=settings.n_moves,
+                     max_resamples=settings.max_resamples)
+        self.joint = js
+        cache = BasisCache() if cache is None else cache
+        seeds = rng.bit_generator.seed_seq.spawn(2) if hasattr(rng.bit_generator, "seed_seq") else None
+        rngs = ([np.random.default_rng(s) for s in seeds] if seeds is not None
+                else [np.random.default_rng(rng.integers(2 ** 63)) for _ in range(2)])
+        self.posts = {
+            h: HypothesisPosterior(model, directions, U, force_scale, self.f0, js,
+                                   HypothesisPrior(self.f0, settings.population_sd, self.gidx, settings.deficit_range,
+                                                   deficit=(h == "deficit")),
+                                   r, n_threads=n_threads, cache=cache)
+            for h, r in zip(("normal", "deficit"), rngs)}
+        self.directions = list(directions)
+        self._snaps: list[dict] = []
+        self.history: list[dict] = [self.summary()]
+
+    # -- state
+    @property
+    def tested(self) -> list[str]:
+        return self.posts["normal"].tested
+
+    @property
+    def remaining(self) -> list[str]:
+        return self.posts["normal"].remaining
+
+    def log_bf(self) -> float:
+        """log Bayes factor of deficit against normal, ``log Z_D - log Z_N``."""
+        return self.posts["deficit"].log_evidence - self.posts["normal"].log_evidence
+
+    def log_bf_se(self) -> float:
+        """Monte Carlo error (1 se) of :meth:`log_bf` (heuristic, see the module docstring)."""
+        return math.sqrt(self.posts["deficit"].log_evidence_var + self.posts["normal"].log_evidence_var)
+
+    def p_deficit(self, prevalence: float | None = None) -> float:
+        pi = self.settings.prevalence if prevalence is None else prevalence
+        x = self.log_bf() + math.log(pi) - math.log1p(-pi)
+        return float(1.0 / (1.0 + math.exp(-x))) if x > -700 else 0.0
+
+    def p_deficit_se(self) -> float:
+        """Monte Carlo error of :meth:`p_deficit` by the delta method from :meth:`log_bf_se` (heuristic)."""
+        p = self.p_deficit()
+        return float(p * (1 - p) * self.log_bf_se())
+
+    def decision(self) -> str:
+        p = self.p_deficit()
+        if p >= self.settings.p_decide:
+            return "deficit"
+        if p <= 1.0 - self.settings.p_decide:
+            return "no deficit"
+        return "undecided"
+
+    def summary(self) -> dict:
+        return {"t": len(self.tested), "direction": self.tested[-1] if self.tested else "",
+                "log_bf": self.log_bf(), "log_bf_se": self.log_bf_se(), "p_deficit": self.p_deficit(),
+                "p_deficit_se": self.p_deficit_se(), "decision": self.decision(),
+                "ess_normal": self.posts["normal"].ess_share(), "ess_deficit": self.posts["deficit"].ess_share(),
+                "ratio_mean_deficit": self.group_ratio_mean("deficit"),
+                "ratio_mean_normal": self.group_ratio_mean("normal")}
+
+    def group_ratio_mean(self, h: str) -> float:
+        p = self.posts[h]
+        r = p.F[:, self.gidx].sum(axis=1) / self.f0[self.gidx].sum()
+        return float(p.weights() @ r)
+
+    def estimate(self) -> pd.DataFrame:
+        """Posterior mean / sd per muscle of the mixture ``P(D) p(f | y, H_D) + P(N) p(f | y, H_N)``."""
+        pd_ = self.p_deficit()
+        E, M2 = 0.0, 0.0
+        for h, ph in (("deficit", pd_), ("normal", 1.0 - pd_)):
+            p = self.posts[h]
+            w = p.weights()
+            E = E + ph * (w @ p.F)
+            M2 = M2 + ph * (w @ p.F ** 2)
+        V = np.maximum(M2 - E ** 2, 0.0)
+        return pd.DataFrame({"muscle": list(self.model.muscle_names), "f_c": E, "sd_c": np.sqrt(V), "v_c": V})
+
+    # -- updates
+    def push(self, direction: str, force: float, activations=None) -> None:
+        self._snaps.append({h: _snapshot(p) for h, p in self.posts.items()})
+        try:
+            for p in self.posts.values():
+                p.update(direction, force, activations)
+        except Exception:
+            s = self._snaps.pop()
+            for h, p in self.posts.items():
+                _restore(p, s[h])
+            raise
+        self.history.append(self.summary())
+
+    def undo(self) -> None:
+        if not self._snaps:
+            raise ValueError("nothing to undo")
+        s = self._snaps.pop()
+        for h, p in self.posts.items():
+            _restore(p, s[h])
+        self.history.pop()
+
+    # -- the next test
+    def scores(self) -> pd.DataFrame:
+        """``decision_eig`` of every remaining test: I(H; y_i) in nats."""
+        rem = self.remaining
+        if not rem:
+            raise ValueError("every direction has been tested")
+        pD = self.p_deficit()
+        out = []
+        for d in rem:
+            i = self.directions.index(d)
+            out.append(self._mi(i, pD))
+        return pd.DataFrame({"direction": rem, "score": out})
+
+    def propose(self) -> tuple[str, pd.DataFrame]:
+        df = self.scores()
+        return str(df["direction"].iloc[int(np.argmax(df["score"].to_numpy()))]), df
+
+    def _mi(self, i: int, pD: float) -> float:
+        sd = self.settings.noise
+        ys, ws = {}, {}
+        for h, p in self.posts.items():
+            w = p.weights()
+            wi = p.W[:, i]
+            pos = wi > 0
+            ys[h] = np.log(wi[pos])
+            ws[h] = (w[pos], float(w[~pos].sum()))
+        allv = np.concatenate([y for y in ys.values() if len(y)]) if any(len(y) for y in ys.values()) else None
+        if allv is None:
+            return 0.0
+        lo, hi = allv.min() - 5 * sd, allv.max() + 5 * sd
+        nb = max(self.settings.n_ybins, int(math.ceil((hi - lo) / (sd / 4))))
+        step = (hi - lo) / nb
+        kx = np.arange(-int(math.ceil(5 * sd / step)), int(math.ceil(5 * sd / step)) + 1) * step
+        ker = np.exp(-0.5 * (kx / sd) ** 2)
+        ker /= ker.sum()
+        dens = {}
+        for h in self.posts:
+            hist = np.bincount(np.clip(((ys[h] - lo) / step).astype(int), 0, nb - 1), weights=ws[h][0], minlength=nb)
+            dens[h] = np.r_[np.convolve(hist, ker, mode="same"), ws[h][1]]     # last cell: not producible
+        ph = {"deficit": pD, "normal": 1.0 - pD}
+
+        def ent(q):
+            q = q[q > 0]
+            q = q / q.sum()
+            return float(-(q * np.log(q)).sum())
+
+        mix = ph["deficit"] * dens["deficit"] + ph["normal"] * dens["normal"]
+        return max(0.0, ent(mix) - sum(ph[h] * ent(dens[h]) for h in self.posts))

@@ -1,0 +1,73 @@
+"""Figures of the deficit-decision study: ROC curves, the reliability diagram and P(deficit) by test."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+
+def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoints: Sequence[int], p_decide: float,
+                       path: str | Path, title: str) -> None:
+    """Three panels: ROC curves of log BF after each checkpoint (per protocol: line style), the reliability
+    diagram (mean printed P against the share with the deficit, 95% intervals) and the median P(deficit) by test
+    with quartiles, deficit vs normal participants. Legends sit beside the panels, not over the data."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from neckstrength.sequential.decision_study import roc_curve
+
+    protocols = list(dict.fromkeys(runs["protocol"]))
+    styles = ["-", "--", ":", "-."]
+    fig, ax = plt.subplots(1, 3, figsize=(16, 5.2), constrained_layout=True)
+    a = ax[0]
+    for pi, protocol in enumerate(protocols):
+        for ci, t in enumerate(checkpoints):
+            c = roc_curve(runs, protocol, t)
+            if c.empty:
+                continue
+            a.step(c["false_alarm"], c["sensitivity"], where="post", ls=styles[pi % len(styles)], color=f"C{ci}",
+                   label=f"{protocol}, {t} tests")
+    a.plot([0, 1], [0, 1], color="grey", lw=0.8)
+    a.axvline(0.05, color="grey", lw=0.8, ls=":")
+    a.set_xlabel("false-alarm rate (normal participants called deficit)")
+    a.set_ylabel("sensitivity (deficit participants called deficit)")
+    a.set_title("ROC of the Bayes factor")
+    a.set_xlim(0, 1)
+    a.set_ylim(0, 1.02)
+    a.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    a = ax[1]
+    for pi, (protocol, g) in enumerate(reliability.groupby("protocol", sort=False)):
+        x = g["mean_p_deficit"].to_numpy(float)
+        y = g["share_with_deficit"].to_numpy(float)
+        err = np.vstack([y - g["ci95_low"].to_numpy(float), g["ci95_high"].to_numpy(float) - y])
+        a.errorbar(x + 0.008 * pi, y, yerr=err, fmt="o", color=f"C{pi}", capsize=3, label=protocol)
+    a.plot([0, 1], [0, 1], color="grey", lw=0.8)
+    a.set_xlabel("printed P(deficit), mean within bin")
+    a.set_ylabel("share of participants with the deficit (95% interval)")
+    a.set_title(f"reliability, after {', '.join(map(str, checkpoints))} tests pooled")
+    a.set_xlim(-0.02, 1.02)
+    a.set_ylim(-0.02, 1.02)
+    a.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    a = ax[2]
+    for pi, protocol in enumerate(protocols):
+        for kind, color in (("deficit", "C3"), ("normal", "C0")):
+            g = runs[(runs["protocol"] == protocol) & (runs["kind"] == kind)]
+            q = g.groupby("t")["p_deficit"].quantile([0.25, 0.5, 0.75]).unstack()
+            a.plot(q.index, q[0.5], color=color, ls=styles[pi % len(styles)], label=f"{kind}, {protocol} (median)")
+            if pi == 0:
+                a.fill_between(q.index, q[0.25], q[0.75], color=color, alpha=0.15, lw=0)
+    for y in (p_decide, 1 - p_decide):
+        a.axhline(y, color="grey", lw=0.8, ls=":")
+    a.set_xlabel("tests done")
+    a.set_ylabel("P(deficit) (quartiles shaded for the first protocol)")
+    a.set_title("P(deficit) by test")
+    a.set_ylim(-0.02, 1.02)
+    a.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    fig.suptitle(title, fontsize=10)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,237 @@
+"""How well the deficit decision decides, measured on simulated patients (issue 31 item 4).
+
+:func:`run_decision_study` measures every participant of a cohort (:mod:`neckstrength.sequential.cohort`, truths
+made apart from the decision's priors) in the order the decision's own criterion (``decision_eig``) picks, under
+each protocol:
+
+- ``forces``: forces only;
+- ``forces+emg``: with surface EMG bounds of the recorded groups (true activation +- band in every tested direction);
+- ``forces+emg+deep``: the deficit group recorded too (fine-wire EMG).
+
+It records after every test the log Bayes factor, its Monte Carlo error, P(deficit) and the decision.
+:func:`roc_table`, :func:`sequential_table` and :func:`reliability_table` summarise it: ROC area and sensitivity
+at a 5% false-alarm rate after t tests (the Bayes factor as the score: a threshold on it is a threshold on
+P(deficit) for any prevalence), the sequential rule's outcome (decided deficit / no deficit / undecided, and the
+tests it took), and the reliability of the printed probability (of the participants given probability p, how
+many have the deficit; only meaningful at the cohort's own share of deficits, which the study's prevalence
+setting must equal).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import pandas as pd
+from scipy.stats import beta as beta_dist
+
+from neckstrength.model.reduction import ReducedModel
+from neckstrength.sequential.cohort import CohortSettings, simulate_participant
+from neckstrength.sequential.decision import DecisionSettings, DeficitDecision
+from neckstrength.sequential.joint import JointSettings
+
+PROTOCOLS = ("forces", "forces+emg", "forces+emg+deep")
+
+
+@dataclass(frozen=True)
+class DecisionStudySettings:
+    """The decision study (config ``clinician.decision_study``)."""
+
+    cohort: CohortSettings = CohortSettings()
+    protocols: tuple[str, ...] = ("forces",)
+    n_max: int = 25
+    checkpoints: tuple[int, ...] = (5, 10, 15, 25)
+    emg_groups: tuple[str, ...] = ()
+    emg_band: float = 0.05
+    false_alarm: float = 0.05
+
+    def __post_init__(self):
+        bad = [p for p in self.protocols if p not in PROTOCOLS]
+        if bad:
+            raise ValueError(f"unknown protocols {bad}; known: {PROTOCOLS}")
+        if any("emg" in p for p in self.protocols) and not self.emg_groups:
+            raise ValueError("protocols with EMG need emg_groups (the recorded muscle groups)")
+
+
+def run_decision_study(model: ReducedModel, directions: Sequence[str], U: np.ndarray, force_scale: np.ndarray,
+                       f0: np.ndarray, decision: DecisionSettings, joint: JointSettings,
+                       study: DecisionStudySettings, rng_for: Callable[[str, int], np.random.Generator],
+                       participants: Sequence[int] | None = None, n_threads: int = 1,
+                       progress: Callable[[str], None] | None = None,
+                       on_participant: Callable[[pd.DataFrame], None] | None = None) -> pd.DataFrame:
+    """One row per participant, protocol and test count t (0 = before any test). Participant ``i`` is drawn from
+    ``rng_for('truth', i)``; both hypotheses' samplers from ``rng_for('candidates', i)`` (the same for every
+    protocol of a participant)."""
+    from neckstrength.wrench.batched import BasisCache
+
+    directions = list(directions)
+    names = list(model.muscle_names)
+    c = study.cohort
+    kinds = ["deficit"] * c.n_deficit + ["normal"] * c.n_normal
+    todo = range(len(kinds)) if participants is None else list(participants)
+    n_max = min(study.n_max, len(directions))
+    base = np.array([n[:-2] if n.endswith(("-R", "-L")) else n for n in names])
+    emg_mask = np.isin(base, list(study.emg_groups))
+    deep_mask = emg_mask | np.isin(base, list(decision.group))
+    gidx = decision.group_indices(names)
+    rows = []
+    t_start = time.time()
+    cache = BasisCache()
+    for i in todo:
+        kind = kinds[i]
+        f, forces, alpha = simulate_participant(model, U, force_scale, f0, decision.group, kind == "deficit", c,
+                                                rng_for("truth", i), cache=cache)
+        ratio = float(f[gidx].sum() / f0[gidx].sum())
+        n_before = len(rows)
+        for protocol in study.protocols:
+            t0 = time.time()
+            mask = {"forces+emg": emg_mask, "forces+emg+deep": deep_mask}.get(protocol)
+            dec = DeficitDecision(model, directions, U, force_scale, f0, decision, joint, rng_for("candidates", i),
+                                  n_threads=n_threads, cache=BasisCache())
+            info = {"participant": i, "kind": kind, "true_ratio": ratio, "protocol": protocol}
+            rows.append({**info, **dec.history[-1]})
+            for _ in range(n_max):
+                d, _ = dec.propose()
+                k = directions.index(d)
+                act = None
+                if mask is not None:
+                    lb, ub = np.zeros(len(names)), np.ones(len(names))
+                    lb[mask] = np.clip(alpha[k][mask] - study.emg_band, 0, 1)
+                    ub[mask] = np.clip(alpha[k][mask] + study.emg_band, 0, 1)
+                    act = (lb, ub)
+                dec.push(d, float(forces[k]), act)
+                rows.append({**info, **dec.history[-1]})
+            if progress:
+                h = dec.history[-1]
+                progress(f"participant {i + 1}/{len(kinds)} ({kind}, group at {ratio:.0%}) {protocol}: log BF "
+                         f"{h['log_bf']:+.1f}, P(deficit) {h['p_deficit']:.2f} after {n_max} tests; "
+                         f"{time.time() - t0:.1f} s (total {time.time() - t_start:.0f} s)")
+        if on_participant:
+            on_participant(pd.DataFrame(rows[n_before:]))
+    return pd.DataFrame(rows)
+
+
+def _auc(pos: np.ndarray, neg: np.ndarray) -> float:
+    """Mann-Whitney estimate of P(score of a deficit > score of a normal), ties counted half."""
+    pos, neg = np.asarray(pos, float), np.asarray(neg, float)
+    gt = (pos[:, None] > neg[None, :]).mean()
+    eq = (pos[:, None] == neg[None, :]).mean()
+    return float(gt + 0.5 * eq)
+
+
+def _auc_se(auc: float, n_pos: int, n_neg: int) -> float:
+    """Hanley & McNeil (1982) standard error of the ROC area."""
+    q1, q2 = auc / (2 - auc), 2 * auc ** 2 / (1 + auc)
+    v = (auc * (1 - auc) + (n_pos - 1) * (q1 - auc ** 2) + (n_neg - 1) * (q2 - auc ** 2)) / (n_pos * n_neg)
+    return float(np.sqrt(max(v, 0.0)))
+
+
+def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    if n == 0:
+        return float("nan"), float("nan")
+    p = k / n
+    d = 1 + z ** 2 / n
+    c = (p + z ** 2 / (2 * n)) / d
+    h = z * np.sqrt(p * (1 - p) / n + z ** 2 / (4 * n ** 2)) / d
+    return float(c - h), float(c + h)
+
+
+def roc_curve(runs: pd.DataFrame, protocol: str, t: int) -> pd.DataFrame:
+    """(false-alarm rate, sensitivity, threshold on log BF) of the score log BF after ``t`` tests."""
+    g = runs[(runs["protocol"] == protocol) & (runs["t"] == t)]
+    pos = g.loc[g["kind"] == "deficit", "log_bf"].to_numpy(float)
+    neg = g.loc[g["kind"] == "normal", "log_bf"].to_numpy(float)
+    thr = np.r_[np.inf, np.sort(np.unique(np.r_[pos, neg]))[::-1], -np.inf]
+    return pd.DataFrame({"protocol": protocol, "t": t, "threshold_log_bf": thr,
+                         "false_alarm": [(neg >= x).mean() for x in thr],
+                         "sensitivity": [(pos >= x).mean() for x in thr]})
+
+
+def roc_table(runs: pd.DataFrame, checkpoints: Sequence[int], false_alarm: float = 0.05,
+              p_decide: float = 0.95) -> pd.DataFrame:
+    """Per protocol and t: ROC area (Hanley-McNeil se), the sensitivity at a false-alarm rate <= ``false_alarm``
+    (the threshold chosen on these normals: optimistic by that choice), and the fixed rule P(deficit) >= p_decide."""
+    out = []
+    for protocol, gp in runs.groupby("protocol", sort=False):
+        for t in checkpoints:
+            g = gp[gp["t"] == t]
+            if g.empty:
+                continue
+            pos = g.loc[g["kind"] == "deficit", "log_bf"].to_numpy(float)
+            neg = g.loc[g["kind"] == "normal", "log_bf"].to_numpy(float)
+            auc = _auc(pos, neg)
+            curve = roc_curve(runs, protocol, t)
+            ok = curve[curve["false_alarm"] <= false_alarm]
+            best = ok.iloc[int(np.argmax(ok["sensitivity"].to_numpy()))]
+            pp = g.loc[g["kind"] == "deficit", "p_deficit"].to_numpy(float)
+            pn = g.loc[g["kind"] == "normal", "p_deficit"].to_numpy(float)
+            k_s, k_f = int((pp >= p_decide).sum()), int((pn >= p_decide).sum())
+            s_lo, s_hi = _wilson(k_s, len(pp))
+            f_lo, f_hi = _wilson(k_f, len(pn))
+            out.append({"protocol": protocol, "t": t, "n_deficit": len(pos), "n_normal": len(neg), "auc": auc,
+                        "auc_se": _auc_se(auc, len(pos), len(neg)),
+                        f"sensitivity_at_fa{false_alarm:g}": float(best["sensitivity"]),
+                        "threshold_log_bf": float(best["threshold_log_bf"]),
+                        f"rule_sensitivity_p{p_decide:g}": k_s / len(pp), "rule_sensitivity_ci95_low": s_lo,
+                        "rule_sensitivity_ci95_high": s_hi, f"rule_false_alarm_p{p_decide:g}": k_f / len(pn),
+                        "rule_false_alarm_ci95_low": f_lo, "rule_false_alarm_ci95_high": f_hi})
+    return pd.DataFrame(out)
+
+
+def sequential_table(runs: pd.DataFrame, p_decide: float = 0.95) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The stopping rule: per run the first t at which P(deficit) >= p_decide (deficit) or <= 1 - p_decide (no
+    deficit), else undecided after the last test; per protocol and kind the shares and the median tests."""
+    per = []
+    for (i, protocol), g in runs.groupby(["participant", "protocol"], sort=False):
+        g = g.sort_values("t")
+        g1 = g[g["t"] > 0]
+        hit = g1[(g1["p_deficit"] >= p_decide) | (g1["p_deficit"] <= 1 - p_decide)]
+        if len(hit):
+            r = hit.iloc[0]
+            dec, t = ("deficit" if r["p_deficit"] >= p_decide else "no deficit"), int(r["t"])
+        else:
+            dec, t = "undecided", int(g["t"].max())
+        per.append({"participant": i, "protocol": protocol, "kind": g["kind"].iloc[0],
+                    "true_ratio": g["true_ratio"].iloc[0], "decision": dec, "tests": t})
+    per = pd.DataFrame(per)
+    out = []
+    for (protocol, kind), g in per.groupby(["protocol", "kind"], sort=False):
+        n = len(g)
+        row = {"protocol": protocol, "kind": kind, "n": n}
+        for d in ("deficit", "no deficit", "undecided"):
+            k = int((g["decision"] == d).sum())
+            lo, hi = _wilson(k, n)
+            row[f"share_{d.replace(' ', '_')}"] = k / n
+            row[f"share_{d.replace(' ', '_')}_ci95"] = f"{lo:.2f}-{hi:.2f}"
+        dd = g[g["decision"] != "undecided"]["tests"]
+        row["median_tests_to_decision"] = float(dd.median()) if len(dd) else float("nan")
+        out.append(row)
+    return per, pd.DataFrame(out)
+
+
+def reliability_table(runs: pd.DataFrame, checkpoints: Sequence[int],
+                      edges: Sequence[float] = (0, 0.05, 0.2, 0.4, 0.6, 0.8, 0.95, 1.0)) -> pd.DataFrame:
+    """Of the (participant, t) pairs given P(deficit) in a bin, the share with the deficit, with its 95% interval
+    (Jeffreys), per protocol; pooled over the checkpoints. Calibrated where the mean P lies within the interval."""
+    out = []
+    e = np.asarray(edges, float)
+    for protocol, gp in runs.groupby("protocol", sort=False):
+        g = gp[gp["t"].isin(list(checkpoints))]
+        p = g["p_deficit"].to_numpy(float)
+        y = (g["kind"] == "deficit").to_numpy()
+        b = np.clip(np.searchsorted(e, p, side="right") - 1, 0, len(e) - 2)
+        for k in range(len(e) - 1):
+            sel = b == k
+            n = int(sel.sum())
+            if not n:
+                continue
+            hits = int(y[sel].sum())
+            lo, hi = beta_dist.ppf([0.025, 0.975], hits + 0.5, n - hits + 0.5)
+            lo, hi = (0.0 if hits == 0 else lo), (1.0 if hits == n else hi)     # Brown, Cai & DasGupta 2001
+            mean_p = float(p[sel].mean())
+            out.append({"protocol": protocol, "bin_low": e[k], "bin_high": e[k + 1], "n": n,
+                        "mean_p_deficit": mean_p, "share_with_deficit": hits / n, "ci95_low": float(lo),
+                        "ci95_high": float(hi), "within_ci": bool(lo <= mean_p <= hi)})
+    return pd.DataFrame(out)

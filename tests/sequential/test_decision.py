@@ -1,0 +1,197 @@
+"""The deficit decision (issue 31): hypothesis priors, evidence, Bayes factor, undo, the study's summaries."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.stats import truncnorm, uniform
+
+from neckstrength.estimation.datasets import simulated_dataset, thesis_f_actual
+from neckstrength.sequential.cohort import CohortSettings, draw_truth
+from neckstrength.sequential.decision import DecisionSettings, DeficitDecision, HypothesisPrior
+from neckstrength.sequential.decision_study import _auc, reliability_table, roc_table, sequential_table
+from neckstrength.sequential.joint import JointPosterior, JointSettings
+from neckstrength.wrench import solve
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def p2m7(p2m7_full_config):
+    _, model, directions = p2m7_full_config
+    fa = thesis_f_actual(model, ROOT / "data" / "thesis", "Sim", table="table_6_1_p2m7_sequential.csv")
+    data = simulated_dataset(model, directions, "Sim", fa)
+    return model, data
+
+
+def test_hypothesis_priors_are_normalised_truncated_normals_and_uniforms():
+    """log_pdf against scipy's truncnorm / uniform (an independent implementation); draws inside the support."""
+    f0 = np.array([100.0, 200.0, 50.0])
+    g = np.array([0])
+    x = np.array([[45.0, 230.0, 40.0], [70.0, 150.0, 60.0]])
+    for deficit in (False, True):
+        p = HypothesisPrior(f0, 0.3, g, (0.2, 0.6), deficit)
+        ref = np.zeros(len(x))
+        for j in range(3):
+            if j == 0 and deficit:
+                ref += uniform(loc=20.0, scale=40.0).logpdf(x[:, j])
+            else:
+                lo = 60.0 if j == 0 else 0.0
+                sd = 0.3 * f0[j]
+                ref += truncnorm((lo - f0[j]) / sd, np.inf, loc=f0[j], scale=sd).logpdf(x[:, j])
+        got = p.log_pdf(x)
+        fin = np.isfinite(ref)
+        assert np.array_equal(np.isfinite(got), fin)
+        assert np.allclose(got[fin], ref[fin], rtol=1e-10)
+        F = p.sample(20000, np.random.default_rng(3))
+        assert np.all(np.isfinite(p.log_pdf(F)))
+        if deficit:
+            assert F[:, 0].min() >= 20.0 and F[:, 0].max() <= 60.0
+            assert abs(F[:, 0].mean() - 40.0) < 0.5
+        else:
+            assert F[:, 0].min() >= 60.0
+            a = (60.0 - 100.0) / 30.0
+            assert abs(F[:, 0].mean() - truncnorm(a, np.inf, loc=100, scale=30).mean()) < 0.6
+
+
+def test_evidence_matches_plain_importance_sampling_from_the_prior(p2m7):
+    """log p(y) of three tests from the sequential sampler (tempering, resampling) against the plain Monte Carlo
+    mean of the likelihood over 100,000 prior draws (a reference the sampler does not define)."""
+    model, data = p2m7
+    f0 = model.strengths
+    settings = JointSettings(n_candidates=3000, noise_rel=0.05, resample_ess=0.3, n_moves=3, max_resamples=20)
+    tests = data.directions[:3]
+    post = JointPosterior(model, data.directions, data.U, data.force_scale, f0, settings, np.random.default_rng(5))
+    for d in tests:
+        post.update(d, float(data.forces[data.directions.index(d)]))
+    ref = JointPosterior(model, data.directions, data.U, data.force_scale, f0,
+                         JointSettings(n_candidates=100_000, noise_rel=0.05), np.random.default_rng(6))
+    ll = np.zeros(100_000)
+    for d in tests:
+        i = data.directions.index(d)
+        w = data.forces[i] * data.force_scale[i]
+        ll += ref._test_loglik(ref.W[:, i], w)
+    log_z_ref = float(np.log(np.mean(np.exp(ll - ll.max()))) + ll.max())
+    assert post.n_resamples >= 1                                  # the tempering and resampling path was used
+    assert post.log_evidence == pytest.approx(log_z_ref, abs=max(0.3, 4 * math.sqrt(post.log_evidence_var)))
+
+
+def test_decision_undo_equals_replay_and_evidence_favours_the_truth(p2m7):
+    model, data = p2m7
+    f0 = model.strengths
+    s = DecisionSettings(group=("TS-E",), n_candidates=400, n_moves=2)
+    js = JointSettings()
+    fa = f0.copy()
+    gi = s.group_indices(model.muscle_names)
+    fa[gi] *= 0.3
+    w, _, st = solve(model, fa[None], data.U)
+    forces = w[0] / data.force_scale
+    a = DeficitDecision(model, data.directions, data.U, data.force_scale, f0, s, js, np.random.default_rng(11))
+    b = DeficitDecision(model, data.directions, data.U, data.force_scale, f0, s, js, np.random.default_rng(11))
+    d0, d1 = data.directions[:2]
+    a.push(d0, forces[0])
+    a.push(d1, forces[1] * 1.3)            # a mis-entry, undone
+    a.undo()
+    a.push(d1, forces[1])
+    b.push(d0, forces[0])
+    b.push(d1, forces[1])
+    assert a.log_bf() == b.log_bf() and a.p_deficit() == b.p_deficit()
+    assert np.array_equal(a.posts["deficit"].F, b.posts["deficit"].F)
+    for d in data.directions[2:]:
+        a.push(d, forces[data.directions.index(d)])
+    assert a.log_bf() > 0.0 and a.decision() != "no deficit"        # the forces favour the true hypothesis
+    assert 0 <= a.p_deficit(prevalence=0.1) < a.p_deficit() < a.p_deficit(prevalence=0.9) <= 1
+    est = a.estimate()
+    assert list(est["muscle"]) == list(model.muscle_names) and np.all(est["sd_c"] >= 0)
+    sc = a.scores() if a.remaining else None
+    assert sc is None or np.all(sc["score"] >= 0)
+
+
+def test_decision_eig_prefers_a_test_that_separates_the_hypotheses(p2m7):
+    """Before any test, the direction whose force moves most with the deficit group scores highest."""
+    model, data = p2m7
+    f0 = model.strengths
+    s = DecisionSettings(group=("TS-E",), n_candidates=1500)
+    dec = DeficitDecision(model, data.directions, data.U, data.force_scale, f0, s, JointSettings(),
+                          np.random.default_rng(2))
+    sc = dec.scores().set_index("direction")["score"]
+    gi = s.group_indices(model.muscle_names)
+    weak = f0.copy()
+    weak[gi] *= 0.4
+    w, _, _ = solve(model, np.vstack([f0, weak]), data.U)
+    drop = pd.Series(np.log(w[0] / w[1]), index=data.directions)
+    assert sc.idxmax() in set(drop.nlargest(3).index)
+    assert sc[drop.idxmin()] < sc.max()
+
+
+def test_settings_validate_and_config_defaults_match_the_dataclass():
+    from neckstrength.config import decision_settings, load_config
+
+    with pytest.raises(ValueError, match="prevalence"):
+        DecisionSettings(prevalence=1.0)
+    with pytest.raises(ValueError, match="deficit_range"):
+        DecisionSettings(deficit_range=(0.6, 0.2))
+    cfg = load_config(ROOT / "config" / "config.yaml")
+    got = decision_settings({"clinician": {"decision": {}}})
+    assert got == DecisionSettings()
+    with pytest.raises(ValueError, match="unknown settings"):
+        decision_settings({"clinician": {"decision": {"prevalance": 0.2}}})
+    import yaml
+
+    schema = yaml.safe_load((ROOT / "workflow" / "schemas" / "config.schema.yaml").read_text())
+    props = schema["properties"]["clinician"]["properties"]["decision"]["properties"]
+    defaults = {f.name: f.default for f in fields(DecisionSettings)}
+    for k, v in props.items():
+        want = defaults[k]
+        assert (tuple(v["default"]) if isinstance(v["default"], list) else v["default"]) == want, k
+    assert decision_settings(cfg).noise == cfg["clinician"]["decision"]["noise"]
+
+
+def test_cohort_truths_stay_in_their_classes():
+    f0 = np.full(6, 100.0)
+    names = ["mf-R", "mf-L", "trap-R", "trap-L", "SCM-R", "SCM-L"]
+    c = CohortSettings(n_deficit=1, n_normal=1)
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        d = draw_truth(f0, names, ("mf",), True, c, rng)
+        n = draw_truth(f0, names, ("mf",), False, c, rng)
+        assert np.all((d[:2] >= 20) & (d[:2] <= 60)) and np.all(n[:2] >= 60)
+    # the other groups vary (population spread), sides close to each other
+    many = np.array([draw_truth(f0, names, ("mf",), False, c, rng) for _ in range(500)])
+    assert 0.2 < np.log(many[:, 2]).std() < 0.3
+    assert np.abs(np.log(many[:, 2] / many[:, 3])).mean() < 0.1
+
+
+def _fake_runs():
+    rows = []
+    rng = np.random.default_rng(1)
+    for i in range(40):
+        kind = "deficit" if i < 20 else "normal"
+        for t in range(0, 6):
+            lbf = (t * (1.0 if kind == "deficit" else -1.0)) + rng.normal(0, 1.0)
+            p = 1 / (1 + math.exp(-lbf))
+            rows.append({"participant": i, "kind": kind, "true_ratio": 0.4 if kind == "deficit" else 1.0,
+                         "protocol": "forces", "t": t, "log_bf": lbf, "p_deficit": p})
+    return pd.DataFrame(rows)
+
+
+def test_study_summaries():
+    assert _auc(np.array([3.0, 2.0]), np.array([1.0, 0.0])) == 1.0
+    assert _auc(np.array([1.0]), np.array([1.0])) == 0.5
+    runs = _fake_runs()
+    roc = roc_table(runs, (1, 5), 0.05, 0.95)
+    assert list(roc["t"]) == [1, 5]
+    assert roc["auc"].iloc[1] > roc["auc"].iloc[0] > 0.5
+    assert roc["sensitivity_at_fa0.05"].between(0, 1).all()
+    per, seq = sequential_table(runs, 0.95)
+    assert set(per["decision"]) <= {"deficit", "no deficit", "undecided"}
+    dd = seq.set_index("kind")
+    assert dd.loc["deficit", "share_deficit"] > 0.5 and dd.loc["normal", "share_no_deficit"] > 0.5
+    rel = reliability_table(runs, (1, 5))
+    assert rel["n"].sum() == 80 and (rel["ci95_low"] <= rel["share_with_deficit"]).all()
+    assert (rel["share_with_deficit"] <= rel["ci95_high"]).all()
