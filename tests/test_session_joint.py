@@ -5,6 +5,7 @@ import io
 import json
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -37,21 +38,24 @@ def test_s3m24_session_defaults_to_joint_eig_and_shows_deficit_trend(tmp_path):
     code, text = _drive(s, ["150", "undo", "150", "measure backLow 120"])
     assert code == 3
     assert "Expected information gain about the joint strengths" in text
-    assert "P(deep-extensor deficit: mf < 60% of baseline)" in text and "NOT a calibrated probability" in text
-    last = text.rsplit("P(deep-extensor deficit", 1)[1].split("\n")[0]
-    assert last.count("->") == 3 and "trend (prior -> now)" in last     # prior + 2 measurements after the undo
-    # the Monte Carlo error, or '?' when the candidates descend from fewer than 10 draws (here, with N 300 and
-    # forces the model fits badly, they do)
-    k = s.state.history[-1]["mc_clusters"]
-    assert ("(Monte Carlo error, 1 se)" in last) == (k >= 10) and ("± ? (Monte Carlo error unknown" in last) == (k < 10)
-    assert "(Monte Carlo error, 1 se)" in text and "heuristic" in text      # earlier screens had one
+    # the deficit decision (issue 31): P(deficit) from the Bayes factor of two hypotheses, its trend, what it
+    # depends on, and that its Monte Carlo error is a heuristic
+    assert "Deep neck extensors (mf, both sides) weak?" in text and "P(deficit) =" in text
+    last = text.rsplit("Deep neck extensors", 1)[1].split("\n")
+    assert last[0].count("->") == 2 and "trend:" in last[0]          # prior + 2 measurements after the undo
+    assert "Bayes factor deficit : normal" in last[1] and "heuristic" in last[1] and "prevalence 50%" in last[1]
+    assert "depends on:" in last[2] and "noise 5%" in last[2]
+    assert s.decision is not None and len(s.decision.history) == 3
+    assert any(w in last[0] for w in ("DEFICIT", "NO DEFICIT", "UNDECIDED"))
     assert len(s.state.tested) == 2
     r = Session.resume(out, progress=lambda x: None)
     assert r.render().split("===", 2)[2] == s.render().split("===", 2)[2]   # same proposal, estimate, P(deficit)
     r.write_summary()
     steps = pd.read_csv(out / "steps.csv", comment="#")
     assert sorted(steps["step"].unique()) == [0, 1, 2] and steps["p_deficit"].between(0, 1).all()
-    assert steps["p_deficit_mc_se"].between(0, 0.5).all()
+    assert steps["p_deficit_se"].between(0, 0.5).all() and steps["log_bf"].notna().all()
+    assert np.allclose(steps.groupby("step")["p_deficit"].first(), [h["p_deficit"] for h in r.decision.history],
+                       rtol=1e-5)
 
 
 def test_s3m24_thesis_criterion_stays_available(tmp_path):

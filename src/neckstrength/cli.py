@@ -251,7 +251,8 @@ def _cmd_session(args) -> int:
                               priorities=parse_priorities(args.priority), config=args.config,
                               n_candidates=args.n_candidates, prior_scale=args.prior_scale,
                               gain_frac=args.stop_frac, cache=args.cache, seed=args.seed, criterion=args.criterion,
-                              postures=args.postures, posture_change_cost=args.posture_change_cost)
+                              postures=args.postures, posture_change_cost=args.posture_change_cost,
+                              prevalence=args.prevalence, noise=args.noise, noise_source=args.noise_source)
         s = Session.start(args.out, opts, threads=args.threads)
         return run_interactive(s) if args.action == "start" else replay_csv(s, args.csv)
     except (InputError, ValueError, FileExistsError, FileNotFoundError) as exc:
@@ -442,6 +443,14 @@ def build_parser() -> argparse.ArgumentParser:
         a.add_argument("--posture-change-cost", type=float, default=0.0, metavar="NATS",
                        help="with --postures: nats charged by the criterion for a test in another posture than the "
                             "last one (default 0)")
+        a.add_argument("--prevalence", type=float, default=None,
+                       help="prior probability of a deep-extensor deficit for this patient (the deficit decision; "
+                            "default: config clinician.decision.prevalence, 0.5)")
+        a.add_argument("--noise", type=float, default=None, metavar="SD",
+                       help="measurement noise of the forces as the sd of the relative error, e.g. from this lab's "
+                            "repeat trials (default: config clinician.decision.noise, 0.05)")
+        a.add_argument("--noise-source", default=None,
+                       help="where --noise comes from, printed with the decision (e.g. 'repeats of P01, 3 trials')")
     a = ss.add_parser("resume", **_doc("session resume"), help="resume a session from its log")
     a.add_argument("--out", required=True, help="the session folder to resume")
     for a in ss.choices.values():

@@ -370,6 +370,11 @@ class SessionOptions:
     postures: list | str | None = None                  # tests in these postures (issue 20; 'all' = config
                                                         # postures.postures); None = neutral only (the thesis's tests)
     posture_change_cost: float = 0.0                    # nats charged per posture change by the criterion
+    prevalence: float | None = None                     # prior P(deficit) of the decision; None = config
+                                                        # clinician.decision.prevalence
+    noise: float | None = None                          # the decision's measurement noise (sd of the relative
+                                                        # force error); None = config clinician.decision.noise
+    noise_source: str | None = None                     # where ``noise`` comes from (printed with the answer)
 
 
 def session_threads(threads: int | None) -> int:
@@ -493,6 +498,7 @@ class Session:
         self._proposals: dict[tuple, Proposal] = {}
         self.log = SessionLog(self.out / LOG)
         self._seq = 0
+        self.decision = None                   # the deficit decision (joint posterior sessions in neutral posture)
         if self.joint:                         # the joint posterior: candidates drawn and solved at start (N x K)
             self.sim = None
             what = (f"tests ({len(postures)} postures x {len(self.base_directions)} directions, change cost "
@@ -503,6 +509,7 @@ class Session:
             self.state = self._joint_state()
             self.key = self.state.key
             progress(f"  ready in {time.time() - t0:.1f} s")
+            self.decision = self._decision(cfg)
             return
         ss = seed_sequence(self.seed, f"session/{opts.model}")
         F = sample_prior(self.f0, s.prior_sd_rel, s.n_candidates, np.random.default_rng(ss))
@@ -530,9 +537,40 @@ class Session:
                           key_extra="postures=" + ",".join(self.postures) + f";cost={self.opts.posture_change_cost!r}")
 
 
+    def _decision(self, cfg):
+        """The deficit decision (issue 31; :mod:`neckstrength.sequential.decision`) beside the joint posterior, for a
+        model with the group and tests in neutral posture; None otherwise."""
+        from neckstrength.config import decision_settings
+        from neckstrength.sequential.decision import DeficitDecision
+
+        over = {}
+        if self.opts.prevalence is not None:
+            over["prevalence"] = float(self.opts.prevalence)
+        if self.opts.noise is not None:
+            over["noise"] = float(self.opts.noise)
+            over["noise_source"] = self.opts.noise_source or "given at session start"
+        try:
+            ds = decision_settings(cfg, **over)
+        except ValueError as exc:
+            raise ValueError(f"session decision settings: {exc}") from None
+        if self.postures or not len(ds.group_indices(self.muscles)):
+            return None
+        t0 = time.time()
+        dec = DeficitDecision(self.model, self.directions, self.U, self.force_scale, self.f0, ds, self.settings,
+                              derive_rng(self.seed, f"session/{self.opts.model}/decision"), n_threads=self.threads)
+        self.progress(f"deficit decision: {ds.n_candidates} candidates per hypothesis, ready in "
+                      f"{time.time() - t0:.1f} s")
+        return dec
+
     def _push(self, step) -> None:
         if self.joint:
             self.state.push(step)
+            if getattr(self, "decision", None) is not None:
+                try:
+                    self.decision.push(step.direction, step.force, step.activations)
+                except Exception:
+                    self.state.undo()
+                    raise
         else:
             self.state.steps.append(step)
 
@@ -570,9 +608,12 @@ class Session:
 
     # -- header
     def header(self) -> dict:
-        return {"format": "neckstrength-session/1", "options": asdict(self.opts), "seed": self.seed,
-                "settings": asdict(self.settings), "sim_key": self.key, "directions": self.directions,
-                "muscles": self.muscles, "gain_frac": self.gain_frac}
+        h = {"format": "neckstrength-session/1", "options": asdict(self.opts), "seed": self.seed,
+             "settings": asdict(self.settings), "sim_key": self.key, "directions": self.directions,
+             "muscles": self.muscles, "gain_frac": self.gain_frac}
+        if getattr(self, "decision", None) is not None:
+            h["decision"] = asdict(self.decision.settings)
+        return h
 
     @classmethod
     def start(cls, out: str | Path, opts: SessionOptions, progress=print, threads: int | None = None) -> "Session":
@@ -598,6 +639,10 @@ class Session:
         if s.key != h["sim_key"]:
             raise ValueError(f"{out}: the candidate set differs from the one the session started with (key "
                              f"{h['sim_key']}, now {s.key}); the config or the package changed")
+        dec = getattr(s, "decision", None)
+        if "decision" in h and (dec is None or json.loads(json.dumps(asdict(dec.settings))) != h["decision"]):
+            raise ValueError(f"{out}: the deficit decision's settings differ from the ones the session started with "
+                             f"({h['decision']}); the config (clinician.decision) changed")
         recs = s.log.read()
         s._seq = max((int(r.get("seq", 0)) for r in recs), default=0)
         for r in effective_entries(recs):
@@ -622,6 +667,8 @@ class Session:
         r = self.entries.pop()
         if r["action"] == "measure":
             self.state.undo()
+            if getattr(self, "decision", None) is not None:
+                self.decision.undo()
         else:
             self.skipped.remove(r["direction"])
         return r
@@ -712,6 +759,10 @@ class Session:
         ratio = best / first if first > 0 else 0.0
         if not self.state.tested:
             return False, f"continue: no measurement yet ({crit})"
+        dec = getattr(self, "decision", None)
+        if dec is not None and dec.decision() != "undecided":
+            return True, (f"STOP recommended: the deficit question is decided ({dec.decision()}, P(deficit) "
+                          f"{dec.p_deficit():.2f}); further tests would only refine the strength estimates")
         if ratio < self.gain_frac:
             return True, (f"STOP recommended: best {self._score_name()} {best:.3f} nats is {ratio:.0%} of the "
                           f"first step's {first:.3f} ({crit})")
@@ -783,6 +834,8 @@ class Session:
     # -- P(deficit) of the configured group (clinician.deficit), with its trend
     def deficit_trend(self) -> list[float]:
         """P(deficit) before any test and after each measurement so far (empty if the model lacks the group)."""
+        if getattr(self, "decision", None) is not None:
+            return [h["p_deficit"] for h in self.decision.history]
         if not self.deficit.applies(self.muscles):
             return []
         if self.joint:
@@ -798,7 +851,31 @@ class Session:
                                                          self.sim.grid, self.f0, self.muscles))
         return out
 
+    def decision_lines(self) -> list[str]:
+        """The deficit decision in a clinician's words, with what it depends on (issue 31)."""
+        dec = self.decision
+        s = dec.settings
+        h = dec.history[-1]
+        tr = [x["p_deficit"] for x in dec.history]
+        arrows = ("... -> " if len(tr) > 8 else "") + " -> ".join(f"{x:.2f}" for x in tr[-8:])
+        word = {"deficit": "DEFICIT", "no deficit": "NO DEFICIT", "undecided": "UNDECIDED"}[h["decision"]]
+        lo, hi = s.deficit_range
+        bf = h["log_bf"]
+        bft = f"{np.exp(bf):.3g}" if abs(bf) < 50 else ("> 1e21" if bf > 0 else "< 1e-21")
+        return [
+            f"Deep neck extensors ({'+'.join(s.group)}, both sides) weak? {word}: P(deficit) = {h['p_deficit']:.2f} "
+            f"(decided at >= {s.p_decide:.2f} or <= {1 - s.p_decide:.2f})   trend: {arrows}",
+            f"  Bayes factor deficit : normal = {bft} (log {bf:+.1f} ± {h['log_bf_se']:.1f}, Monte Carlo error, "
+            f"heuristic); prior prevalence {s.prevalence:.0%} (clinician.decision.prevalence)",
+            f"  depends on: deficit = each side at {lo:.0%}-{hi:.0%} of normal (uniform), normal = at least "
+            f"{hi:.0%}; every muscle varies with sd {s.population_sd:.0%}; noise {s.noise:.0%} ({s.noise_source}); "
+            f"{s.n_candidates} candidates per hypothesis",
+            "  how well it decides: measured on simulated patients of this model (docs/clinician.md, decision "
+            "study: ROC, sensitivity at a 5% false-alarm rate, reliability); not checked under model misfit"]
+
     def deficit_lines(self) -> list[str]:
+        if getattr(self, "decision", None) is not None:
+            return self.decision_lines()
         tr = self.deficit_trend()
         if not tr:
             return []
@@ -856,6 +933,11 @@ class Session:
                f"{self.opts.prior_scale:g} f'_base, sd 0.3 f_0; seed {self.seed}; candidate key {self.key}",
                "f_c = posterior mean, sd_c = posterior sd (N; not calibrated under model misfit, docs/calibration.md); "
                "entropy in nats (Eq. 6.3)"]
+        if self.decision is not None:
+            dec = self.decision
+            hdr.append(f"deficit decision: {dec.decision()}, P(deficit) {dec.p_deficit():.3f}, log Bayes factor "
+                       f"{dec.log_bf():+.2f} ± {dec.log_bf_se():.2f} (Monte Carlo, heuristic); "
+                       f"{dec.settings.label()}; how well it decides: docs/clinician.md")
         atomic_write_csv(e, self.out / "summary.csv", hdr, float_format="%.6g")
         # per-step trajectory (iteration 0 = prior)
         rows = []
@@ -881,7 +963,11 @@ class Session:
         traj = pd.DataFrame(rows)
         if pdef:
             traj["p_deficit"] = np.asarray(pdef)[traj["step"].to_numpy()]
-            if self.joint:
+            if getattr(self, "decision", None) is not None:
+                hist = pd.DataFrame(self.decision.history)
+                for c in ("log_bf", "log_bf_se", "p_deficit_se", "decision"):
+                    traj[c] = hist[c].to_numpy()[traj["step"].to_numpy()]
+            elif self.joint:
                 se = [h.get("p_deficit_se", np.nan) for h in self.state.history]
                 traj["p_deficit_mc_se"] = np.asarray(se)[traj["step"].to_numpy()]
         atomic_write_csv(traj, self.out / "steps.csv", hdr[:2], float_format="%.6g")

@@ -64,6 +64,7 @@ class DecisionSettings:
     resample_ess: float = 0.3                   # resample-move when the ESS falls below this share
     n_moves: int = 10                           # Metropolis-Hastings steps per resample
     max_resamples: int = 50                     # tempering steps per test
+    sampler: str = "resample_move"              # or "fresh_draws": JointPosterior's resampling (for comparison only)
     n_ybins: int = 128                          # predictive histogram of decision_eig
 
     def __post_init__(self):
@@ -76,6 +77,8 @@ class DecisionSettings:
             raise ValueError(f"clinician.decision.p_decide must be in (0.5, 1), got {self.p_decide}")
         if self.noise <= 0 or self.population_sd <= 0:
             raise ValueError("clinician.decision.noise and population_sd must be positive")
+        if self.sampler not in ("resample_move", "fresh_draws"):
+            raise ValueError(f"clinician.decision.sampler: resample_move or fresh_draws, not {self.sampler!r}")
         if not 0 < self.resample_ess <= 1 or self.n_moves < 1 or self.max_resamples < 1:
             raise ValueError("clinician.decision: resample_ess in (0, 1], n_moves >= 1, max_resamples >= 1")
         if self.n_candidates < 100:
@@ -140,8 +143,9 @@ class HypothesisPosterior(JointPosterior):
 
     def __init__(self, model: ReducedModel, directions: Sequence[str], U: np.ndarray, force_scale: np.ndarray,
                  f0: np.ndarray, settings: JointSettings, prior: HypothesisPrior, rng: np.random.Generator,
-                 n_threads: int = 1, cache=None):
+                 n_threads: int = 1, cache=None, fresh_draws: bool = False):
         self.prior = prior
+        self.fresh_draws = fresh_draws
         super().__init__(model, directions, U, force_scale, f0, settings, rng, n_threads=n_threads, cache=cache)
 
     def _draw_prior(self, n: int) -> np.ndarray:
@@ -155,7 +159,9 @@ class HypothesisPosterior(JointPosterior):
         ``n_moves`` Metropolis-Hastings steps on the current target. Unlike :meth:`JointPosterior.resample` no fresh
         candidates are drawn from a fitted log-normal, which on the narrow, curved posteriors of 5% noise lost
         the high-likelihood region in some runs (log Bayes factors of one data set differing by > 100 between
-        seeds); keeping the candidates keeps it."""
+        seeds); keeping the candidates keeps it. ``fresh_draws`` restores the parent's resampling (comparison)."""
+        if self.fresh_draws:
+            return super().resample()
         self._move(max(1, self.settings.n_moves))
         self.n_resamples += 1
 
@@ -208,7 +214,8 @@ class DeficitDecision:
             h: HypothesisPosterior(model, directions, U, force_scale, self.f0, js,
                                    HypothesisPrior(self.f0, settings.population_sd, self.gidx, settings.deficit_range,
                                                    deficit=(h == "deficit")),
-                                   r, n_threads=n_threads, cache=cache)
+                                   r, n_threads=n_threads, cache=cache,
+                                   fresh_draws=settings.sampler == "fresh_draws")
             for h, r in zip(("normal", "deficit"), rngs)}
         self.directions = list(directions)
         self._snaps: list[dict] = []
