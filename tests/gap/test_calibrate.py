@@ -104,8 +104,14 @@ def test_a_gap_three_times_the_stated_noise_is_never_consistent_with_noise(ctx_p
     # be "not explained"; with heldout (the misfit taken as the noise, before issue 32 the default) it was
     # "consistent with noise", and now the report says the size of the gap cannot be tested
     data = [_noisy_control(ctx_p2, 0.24)]
-    d = dg.diagnose(ctx_p2, data, _settings(replicates=19, noise="prior", power_replicates=0))[0].summary
+    diag = dg.diagnose(ctx_p2, data, _settings(replicates=19, noise="prior", power_replicates=0))[0]
+    d = diag.summary
     assert d["noise_source"] == "prior" and d["noise_sigma"] == pytest.approx(0.08)
+    from neckstrength.gap.report import _calibration_lines
+
+    text = "\n".join(_calibration_lines(diag))
+    assert "log-normal SD 0.080, source `prior`" in text and "not measured here" in text
+    assert "### Sensitivity to the noise level" in text and "| prior high | 0.15 |" in text
     assert d["gap_over_noise"] > 3 and d["remainder_unexplained"] and d["remainder_tested"]
     assert "not explained by any candidate" in d["remainder"] and d["p_remainder_gap"] == pytest.approx(1 / 20)
     sens = {r["noise"]: r for r in d["sensitivity"]}

@@ -169,7 +169,12 @@ def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
              + "). Held-out RMS log residual of the named candidate "
              f"{s.get('rms_heldout_log_chosen', np.nan):.3f} = {s.get('gap_over_noise', np.nan):.1f} x the noise "
              f"(noise-only replicates: median {s.get('gap_over_noise_null_median', np.nan):.1f} x; held-out "
-             "residuals exceed the noise because the strengths are fitted without the held-out directions).", "",
+             "residuals exceed the noise because the strengths are fitted without the held-out directions).",
+             *([f"- **Caveat**: `{s['chosen']}` is named, but the gap that remains is not explained. The noise-only "
+                "replicates come from the fitted model, which that gap contradicts; an effect that absorbs part of an "
+                "unrelated misfit also beats them. Read the named effect as reducing the misfit by more than noise "
+                "would, not as its cause (docs/gap_diagnosis.md, Current results)."]
+               if s.get("chosen", "none") != "none" and s.get("remainder_unexplained") else []), "",
              *_sensitivity_lines(s),
              "### Power per effect", "",
              "Smallest simulated effect size (share of the way from neutral to the far bound of its range) that this "
