@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import difflib
 import json
 from dataclasses import fields
 from pathlib import Path
@@ -28,7 +29,7 @@ from neckstrength.gap.discriminate import DiscriminateSettings
 from neckstrength.gap.effects import GapContext
 from neckstrength.gap.engine import CalibrationSettings
 from neckstrength.gap.fit import FitSettings
-from neckstrength.io import read_activations
+from neckstrength.io import DataValidationError, read_activations
 from neckstrength.model.full import FullModel, load_full_model
 from neckstrength.model.geometry import (
     HeadEllipsoid,
@@ -44,17 +45,152 @@ from neckstrength.sequential.algorithms import SequentialSettings
 from neckstrength.sequential.joint import JointSettings
 
 
-def load_config(path: str | Path) -> dict:
-    """Load a YAML config and validate it (defaults filled) against the workflow schema."""
-    path = Path(path)
-    with open(path) as fh:
-        cfg = yaml.safe_load(fh)
-    schema = path.resolve().parent.parent / "workflow" / "schemas" / "config.schema.yaml"
-    if schema.exists():
-        from snakemake.utils import validate
+SCHEMA = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
 
-        validate(cfg, str(schema))
+
+class ConfigError(DataValidationError):
+    """The config has an unknown setting, a value outside its domain, or names a data set the data lack."""
+
+    def __init__(self, source: str | Path, problems: Sequence[str]):
+        self.problems = list(problems)
+        super().__init__(source, self.problems[0])
+        self.args = ("\n".join(f"{source}: {p}" for p in self.problems),)
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
+def unknown_settings(cfg: Any, schema: Mapping, path: str = "") -> list[str]:
+    """Every key of ``cfg`` the schema does not list, as "`a.b`: unknown setting; did you mean `c`?".
+
+    An object whose schema lists ``properties`` accepts only those keys; one whose ``additionalProperties`` is a
+    schema is a map (free keys, each value checked against that schema); one with neither is free. Array items
+    and ``anyOf``/``oneOf`` branches are checked in turn (a value passes a choice when one object branch takes it).
+    """
+    if not isinstance(schema, Mapping):
+        return []
+    out: list[str] = []
+    for comb in ("anyOf", "oneOf"):
+        branches = [b for b in schema.get(comb, ()) if isinstance(b, Mapping)]
+        if branches and isinstance(cfg, Mapping):
+            per = [unknown_settings(cfg, b, path) for b in branches if "properties" in b
+                   or "additionalProperties" in b or b.get("type") == "object"]
+            if per and all(per):
+                out += per[0]
+    for b in schema.get("allOf", ()):
+        out += unknown_settings(cfg, b, path)
+    if isinstance(cfg, Mapping):
+        props = schema.get("properties")
+        extra = schema.get("additionalProperties")
+        for key, value in cfg.items():
+            where = f"{path}.{key}" if path else str(key)
+            if props is not None and key in props:
+                out += unknown_settings(value, props[key], where)
+            elif isinstance(extra, Mapping):
+                out += unknown_settings(value, extra, where)
+            elif props is not None:
+                close = difflib.get_close_matches(str(key), [str(k) for k in props], n=1)
+                hint = f"did you mean `{close[0]}`?" if close else f"known: {', '.join(map(str, props))}"
+                out.append(f"`{where}`: unknown setting; {hint}")
+    elif isinstance(cfg, list) and isinstance(schema.get("items"), Mapping):
+        for i, value in enumerate(cfg):
+            out += unknown_settings(value, schema["items"], f"{path}[{i}]")
+    return out
+
+
+def validate_config(cfg: dict, schema_path: str | Path = SCHEMA, source: str | Path = "config") -> dict:
+    """Check ``cfg`` against the workflow schema and fill in its defaults (in place); returns ``cfg``.
+
+    Unknown keys (a typo of a setting silently has no effect otherwise) and values outside their domain raise
+    :class:`ConfigError` naming the dotted setting. The CLI (:func:`load_config`) and the workflow
+    (workflow/rules/common.smk) both call this.
+    """
+    import jsonschema
+    from snakemake.exceptions import WorkflowError
+    from snakemake.utils import validate
+
+    if not isinstance(cfg, dict):
+        raise ConfigError(source, [f"expected a mapping of settings, not {type(cfg).__name__}"])
+    schema = yaml.safe_load(Path(schema_path).read_text())
+    problems = unknown_settings(cfg, schema)
+    if problems:
+        raise ConfigError(source, problems)
+    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(cfg), key=lambda e: list(map(str, e.path)))
+    if errors:
+        raise ConfigError(source, [f"`{'.'.join(map(str, e.path)) or '(top level)'}`: {_short(e.message)}"
+                                   for e in errors])
+    try:
+        validate(cfg, str(schema_path))
+    except WorkflowError as exc:     # a value the defaults made invalid (should not happen with this schema)
+        raise ConfigError(source, [_short(str(exc))]) from None
     return cfg
+
+
+def _short(text: str, limit: int = 200) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[:limit] + " ..."
+
+
+def load_config(path: str | Path) -> dict:
+    """Load a YAML config and validate it (defaults filled) against the workflow schema (:func:`validate_config`).
+
+    The schema is ``workflow/schemas/config.schema.yaml`` beside the config's folder, else the package's own.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise DataValidationError(path, "is a folder, not a config file")
+    with open(path) as fh:
+        try:
+            cfg = yaml.safe_load(fh)
+        except yaml.YAMLError as exc:
+            raise DataValidationError(path, f"not valid YAML: {_short(exc)}") from None
+    schema = path.resolve().parent.parent / "workflow" / "schemas" / "config.schema.yaml"
+    if not schema.exists():
+        schema = SCHEMA
+    if schema.exists():
+        validate_config(cfg, schema, path.name)
+    return cfg
+
+
+def measurement_participants(path: str | Path) -> list[str] | None:
+    """The participant columns of a measurement table (None when the file does not exist yet)."""
+    from neckstrength.io import read_measurements
+
+    if not Path(path).is_file():
+        return None
+    return [str(c) for c in read_measurements(path).columns]
+
+
+def check_config_datasets(cfg: Mapping, source: str | Path = "config") -> None:
+    """Every data-set name the config lists exists: a participant column of the measurement table it reads, a
+    simulated set ('norm', 'weak'; Chapter 6 also ``chapter6.simulated``); raises :class:`ConfigError` listing the
+    known names. A measurement table that does not exist yet (written by a rule) is not checked here."""
+    simulated = ["norm", "weak"]
+    main = measurement_participants(cfg["data"]["measurements"])
+    gap_table = cfg.get("gap", {}).get("measurements") or cfg["data"]["measurements"]
+    gap = measurement_participants(gap_table)
+    problems = []
+
+    def check(key: str, names, table_cols, extra=()):
+        if table_cols is None:
+            return
+        known = list(dict.fromkeys([*extra, *table_cols]))
+        for name in names or ():
+            if str(name) not in known:
+                problems.append(f"`{key}`: data set '{name}' is not in the data (known: {', '.join(known)})")
+
+    check("participants", cfg.get("participants"), main)
+    c5 = cfg.get("chapter5", {})
+    check("chapter5.datasets", c5.get("datasets"), main, simulated)
+    check("chapter5.smc.datasets", c5.get("smc", {}).get("datasets"), main, simulated)
+    c6 = cfg.get("chapter6", {})
+    c6_sim = simulated + list(c6.get("simulated", {}) or {})
+    check("chapter6.datasets", c6.get("datasets"), main, c6_sim)
+    for model, names in (c6.get("model_datasets") or {}).items():
+        check(f"chapter6.model_datasets.{model}", names, main, c6_sim)
+    check("gap.datasets", cfg.get("gap", {}).get("datasets"), gap, simulated)
+    if problems:
+        raise ConfigError(source, problems)
 
 
 class UndeclaredSettingError(RuntimeError):

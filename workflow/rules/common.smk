@@ -1,13 +1,20 @@
 # Config validation, data-set lists and input functions shared by all stages.
-from snakemake.utils import validate
+import os
 
+from snakemake.exceptions import WorkflowError
+from neckstrength.config import ConfigError, check_config_datasets, validate_config
 
-validate(config, "../schemas/config.schema.yaml")
+# The config (config/config.yaml merged with any --configfile / --config) is checked as the CLI checks it: an
+# unknown key (with the closest valid one suggested) or a value outside its domain stops the run at start-up.
+CONFIG_SOURCE = "config (" + ", ".join(["config/config.yaml"] + [os.path.relpath(f) for f in workflow.overwrite_configfiles]) + ")"
+try:
+    validate_config(config, os.path.join(workflow.current_basedir, "../schemas/config.schema.yaml"), CONFIG_SOURCE)
+except ConfigError as exc:
+    raise WorkflowError(f"invalid config:\n{exc}") from None
 
 
 # Validate the input data at start-up: a malformed file stops the run (naming file, row and field)
 # before any job starts, so no existing output is removed or overwritten.
-from snakemake.exceptions import WorkflowError
 from neckstrength.io import DataValidationError, read_activations, read_measurements
 from neckstrength.model.geometry import read_point_spec, read_test_points
 
@@ -18,6 +25,9 @@ try:
         read_test_points(config["geometry"]["test_points"])
     else:
         read_point_spec(config["geometry"]["test_point_spec"])
+    check_config_datasets(config, CONFIG_SOURCE)     # data-set names present in the data (known names listed)
+except ConfigError as exc:
+    raise WorkflowError(f"invalid config:\n{exc}") from None
 except DataValidationError as exc:
     raise WorkflowError(f"invalid input data: {exc}") from None
 
