@@ -141,7 +141,42 @@ def run_estimate(config: Mapping, model_name: str, participant: str, measurement
         est = pd.read_csv(out / "joint_estimate.csv", comment="#")
         summary["estimate"] = str(out / "joint_estimate.csv")
         table = est.drop(columns=[c for c in ("f_true", "rel_diff_true", "criterion") if c in est.columns])
+    summary.update(_decision(cfg, model_name, participant, prep, out, threads, log))
     summary["seconds"] = round(time.time() - t0, 1)
     atomic_write_text(json.dumps(summary, indent=2, default=float), out / "run.json")
     summary["table"] = table
     return summary
+
+
+def _decision(cfg: Mapping, model_name: str, participant: str, prep: dict, out: Path, threads: int,
+              log: Callable[[str], None]) -> dict:
+    """The deficit decision (issue 31, the session's and the study's code) on the participant's forces, for a model
+    with the decision's group; ``decision.csv`` (one row per test) and a summary entry. Empty for other models."""
+    from neckstrength.config import decision_settings, derive_rng, full_model_from_config, joint_settings, \
+        model_from_config
+    from neckstrength.estimation.datasets import model_directions_table
+    from neckstrength.pipeline.common import load_directions
+    from neckstrength.sequential.decision import decide
+
+    ds = decision_settings(cfg)
+    model = model_from_config(full_model_from_config(cfg), cfg, model_name)
+    if not len(ds.group_indices(model.muscle_names)):
+        return {}
+    d, U = model_directions_table(model, load_directions(prep["directions"]))
+    meas = pd.read_csv(prep["measurements"], comment="#").set_index("direction")[participant]
+    forces = meas.reindex(list(d["name"])).to_numpy(float)
+    t0 = time.time()
+    dec, hist = decide(model, list(d["name"]), U, d["force_scale"].to_numpy(float), model.strengths, forces, ds,
+                       joint_settings(cfg), derive_rng(int(cfg["seed"]), f"estimate/{model_name}/decision"),
+                       n_threads=threads)
+    hdr = [f"deficit decision for {participant} ({model_name}; issue 31, docs/clinician.md): {ds.label()}; "
+           f"{ds.n_candidates} candidates per hypothesis; seed {int(cfg['seed'])}, stream "
+           f"'estimate/{model_name}/decision'",
+           "log_bf: log Bayes factor deficit : normal, log_bf_se its Monte Carlo error (heuristic); p_deficit at the "
+           "prevalence; decision at p_decide; how well it decides on simulated patients: docs/clinician.md; "
+           "not checked under model misfit"]
+    atomic_write_csv(hist, out / "decision.csv", hdr, float_format="%.6g")
+    log(f"deficit decision: {dec.decision()} (P(deficit) {dec.p_deficit():.2f}, log Bayes factor "
+        f"{dec.log_bf():+.1f} ± {dec.log_bf_se():.1f} heuristic; {ds.label()}) in {time.time() - t0:.0f} s")
+    return {"decision": dec.decision(), "p_deficit": dec.p_deficit(), "log_bf": dec.log_bf(),
+            "log_bf_se": dec.log_bf_se(), "decision_settings": ds.label(), "decision_csv": str(out / "decision.csv")}

@@ -195,3 +195,26 @@ def test_study_summaries():
     rel = reliability_table(runs, (1, 5))
     assert rel["n"].sum() == 80 and (rel["ci95_low"] <= rel["share_with_deficit"]).all()
     assert (rel["share_with_deficit"] <= rel["ci95_high"]).all()
+
+
+def test_estimate_writes_the_decision_for_a_model_with_the_group(tmp_path):
+    """`neckstrength estimate` runs the same decision on the participant's table (s3m24, CI sizes)."""
+    import os
+
+    from neckstrength.config import load_config
+    from neckstrength.estimate import _decision, _prepare_inputs
+
+    cwd = os.getcwd()
+    os.chdir(ROOT)
+    try:
+        cfg = load_config(ROOT / "config" / "config.ci.yaml")
+        prep = _prepare_inputs(cfg, "s3m24", "S003", ROOT / "data" / "thesis" / "table_A2_max_force.csv", None,
+                               tmp_path, lambda s: None)
+        got = _decision(cfg, "s3m24", "S003", prep, tmp_path, 1, lambda s: None)
+        assert _decision(cfg, "p2m7", "S003", prep, tmp_path, 1, lambda s: None) == {}     # no mf in p2m7
+    finally:
+        os.chdir(cwd)
+    hist = pd.read_csv(tmp_path / "decision.csv", comment="#")
+    assert len(hist) == len(prep["used"]) + 1 and hist["t"].tolist() == list(range(len(hist)))
+    assert got["decision"] in ("deficit", "no deficit", "undecided") and 0 <= got["p_deficit"] <= 1
+    assert got["log_bf"] == pytest.approx(hist["log_bf"].iloc[-1], rel=1e-5)

@@ -350,3 +350,16 @@ class DeficitDecision:
 
         mix = ph["deficit"] * dens["deficit"] + ph["normal"] * dens["normal"]
         return max(0.0, ent(mix) - sum(ph[h] * ent(dens[h]) for h in self.posts))
+
+
+def decide(model: ReducedModel, directions: Sequence[str], U: np.ndarray, force_scale: np.ndarray, f0: np.ndarray,
+           forces: Sequence[float], settings: DecisionSettings, joint: JointSettings, rng: np.random.Generator,
+           n_threads: int = 1) -> tuple[DeficitDecision, pd.DataFrame]:
+    """The decision on a participant's measured forces (N, one per direction, NaN = not measured), the tests in
+    the given order (a table's order: the answer after all of them does not depend on it beyond Monte Carlo
+    error). Returns the decision object and its history (one row per test, 0 = before any)."""
+    dec = DeficitDecision(model, directions, U, force_scale, f0, settings, joint, rng, n_threads=n_threads)
+    for d, f in zip(directions, forces):
+        if np.isfinite(f):
+            dec.push(d, float(f))
+    return dec, pd.DataFrame(dec.history)
