@@ -16,7 +16,9 @@ Verbs:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import shutil
 import sys
 import textwrap
 from pathlib import Path
@@ -26,6 +28,76 @@ import pandas as pd
 
 from neckstrength.config import load_config
 from neckstrength.io import DataValidationError
+
+
+# --- output folders: nothing of an earlier run or of the inputs is replaced without --force -------------------------
+
+def _same_path(a: Path, b: Path) -> bool:
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+    except OSError:
+        pass
+    return a.resolve() == b.resolve()
+
+
+def _check_out(out, force: bool, inputs=(), files=None) -> Path | None:
+    """Check an ``--out`` folder before anything is written; returns the topmost folder this run will create.
+
+    ``files``: the files the command writes there (each must not exist, unless ``force``); None: the command writes a
+    varying set, so the folder must be empty (``force``: write into it). An input is never overwritten, even with
+    ``force``. Raises :class:`DataValidationError` (one line) otherwise.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise DataValidationError(out, "--out names an existing file; give a folder (new or empty)")
+    ins = [Path(i) for i in inputs if i]
+    if files is not None:
+        for f in map(Path, files):
+            for i in ins:
+                if _same_path(f, i):
+                    raise DataValidationError(f, "is an input of this command and is never overwritten; choose "
+                                                 "another --out")
+            if f.is_dir():
+                raise DataValidationError(f, "is a folder; this command writes a file of that name there")
+        existing = [Path(f) for f in files if Path(f).exists()]
+        if existing and not force:
+            more = f" (and {len(existing) - 1} more output(s))" if len(existing) > 1 else ""
+            raise DataValidationError(existing[0], f"exists{more}; give --force to replace it, or choose another "
+                                                   "--out")
+    elif out.is_dir():
+        entries = sorted(out.iterdir())
+        if entries and not force:
+            raise DataValidationError(out, f"--out folder is not empty ({len(entries)} entries, e.g. "
+                                           f"{entries[0].name}); give --force to write into it, or choose another "
+                                           "--out")
+        for i in ins:
+            if entries and i.exists() and out.resolve() in i.resolve().parents:
+                raise DataValidationError(i, f"is an input inside --out {out}, which --force could overwrite; "
+                                             "choose another --out")
+    top = None
+    for d in [out, *out.parents]:
+        if d.exists():
+            break
+        top = d
+    return top
+
+
+@contextlib.contextmanager
+def _removed_on_failure(created: Path | None):
+    """Remove ``created`` (a folder this run made, see :func:`_check_out`) when the block fails; the caller sets
+    ``state['ok']`` when it succeeded (a non-zero exit code counts as failure)."""
+    state = {"ok": False}
+    try:
+        yield state
+    finally:
+        if not state["ok"] and created is not None and created.is_dir():
+            shutil.rmtree(created, ignore_errors=True)
+
+
+def _add_force(d) -> None:
+    d.add_argument("--force", action="store_true",
+                   help="replace outputs of an earlier run in --out (never an input of this command)")
 
 
 def _cmd_directions(args) -> int:
@@ -130,9 +202,15 @@ def _cmd_import_trials(args) -> int:
     from neckstrength.config import build_directions
     from neckstrength.trials import import_to_folder
 
+    from neckstrength.trials import default_outputs
+
     cfg = _config(args.config)
-    res, outputs = import_to_folder(args.trials, build_directions(cfg), args.out, _trial_settings(args, cfg),
-                                    args.signals)
+    created = _check_out(args.out, args.force, [args.trials, args.signals, args.config],
+                         list(default_outputs(args.out).values()))
+    with _removed_on_failure(created) as done:
+        res, outputs = import_to_folder(args.trials, build_directions(cfg), args.out, _trial_settings(args, cfg),
+                                        args.signals)
+        done["ok"] = True
     s = res.summary
     print(f"{s['trials']} trials, {s['participants']} participants ({', '.join(s['participant_ids'])}): "
           f"{s['matched']} matched the target direction, {s['excluded_mismatch']} excluded as not matched, "
@@ -150,19 +228,33 @@ def _cmd_import_trials(args) -> int:
 def _cmd_example_lab(args) -> int:
     from neckstrength.trials.synthetic import write_example
 
-    paths = write_example(_config(args.config), args.out, args.seed)
+    cfg = _config(args.config)
+    created = _check_out(args.out, args.force, [args.config],
+                         [Path(args.out) / "trials.csv", Path(args.out) / "true_strengths.csv"])
+    with _removed_on_failure(created) as done:
+        paths = write_example(cfg, args.out, args.seed)
+        done["ok"] = True
     print(f"wrote SYNTHETIC {paths['trials']} and {paths['truth']} (seed {args.seed})")
     return 0
 
 
 def _cmd_estimate(args) -> int:
-    import contextlib
-
-    from neckstrength.estimate import run_estimate
-
     cfg = _config(args.config)
     out = Path(args.out)
     measurements, activations = args.measurements, args.activations
+    if measurements is None and not args.trials:
+        print("error: give --measurements (a Table A.2-layout file) or --trials", file=sys.stderr)
+        return 2
+    created = _check_out(out, args.force, [measurements, activations, args.trials, args.signals, args.config])
+    with _removed_on_failure(created) as done:
+        rc = _estimate_into(args, cfg, out, measurements, activations)
+        done["ok"] = rc == 0
+    return rc
+
+
+def _estimate_into(args, cfg, out: Path, measurements, activations) -> int:
+    from neckstrength.estimate import run_estimate
+
     if args.trials:
         from neckstrength.config import build_directions
         from neckstrength.trials import import_to_folder
@@ -195,10 +287,6 @@ def _cmd_estimate(args) -> int:
 
 
 def _cmd_c3d(args) -> int:
-    from neckstrength.config import build_directions
-    from neckstrength.io import atomic_write_csv
-    from neckstrength.trials.c3d import c3d_to_tables
-
     cfg = _config(args.config)
     channels = {}
     for item in args.channel or []:
@@ -208,19 +296,30 @@ def _cmd_c3d(args) -> int:
         k, v = item.split("=", 1)
         channels[k.strip()] = v.strip()
     s = _trial_settings(args, cfg)
+    out = Path(args.out)
+    created = _check_out(out, args.force, [args.manifest, args.config], [out / "trials.csv", out / "signals.csv"])
+    with _removed_on_failure(created) as done:
+        _c3d_write(args, cfg, channels, s, out)
+        done["ok"] = True
+    print(f"wrote {out / 'trials.csv'} and {out / 'signals.csv'}; next: neckstrength "
+          f"import-trials {out / 'trials.csv'} --signals {out / 'signals.csv'} --out <folder>")
+    return 0
+
+
+def _c3d_write(args, cfg, channels, s, out: Path) -> None:
+    from neckstrength.config import build_directions
+    from neckstrength.io import atomic_write_csv
     from neckstrength.trials import default_frames
+    from neckstrength.trials.c3d import c3d_to_tables
 
     trials, signals = c3d_to_tables(args.manifest, build_directions(cfg), channels,
                                     default_frames(s.pad_to_c0_m, s.frames))
-    out = Path(args.out)
     atomic_write_csv(trials, out / "trials.csv", [f"from C3D files listed in {args.manifest}",
                                                    "units: Mx=N*m; My=N*m; Mz=N*m; Fx=N; Fy=N; Fz=N; peak_time_s=s"],
                      float_format="%.6g")
     atomic_write_csv(signals, out / "signals.csv", [f"EMG analog channels from C3D files listed in {args.manifest}",
                                                      "units: time_s=s"], float_format="%.6g")
-    print(f"wrote {out / 'trials.csv'} ({len(trials)} trials) and {out / 'signals.csv'}; next: neckstrength "
-          f"import-trials {out / 'trials.csv'} --signals {out / 'signals.csv'} --out <folder>")
-    return 0
+    print(f"{len(trials)} trials from {args.manifest}")
 
 
 def _cmd_derive(args) -> int:
@@ -261,17 +360,7 @@ def _cmd_session(args) -> int:
 
 
 def _cmd_diagnose(args) -> int:
-    from neckstrength.config import (
-        build_directions,
-        diagnosis_settings,
-        discriminate_settings,
-        gap_blind_dataset,
-        gap_context,
-        gap_settings_text,
-        gap_withheld_activations,
-        head_from_config,
-    )
-    from neckstrength.gap.run import DATASET_FILES, FIGURES, run_diagnosis
+    from neckstrength.gap.run import DATASET_FILES, FIGURES
 
     cfg = load_config(args.config)
     if args.measurements:
@@ -285,6 +374,27 @@ def _cmd_diagnose(args) -> int:
     outputs.update({"summary": out / "summary.json", "report": out / "report.md"})
     if args.extra_trials:
         outputs["update"] = out / "update.csv"
+    created = _check_out(out, args.force, [args.config, args.measurements, args.extra_trials,
+                                           cfg["gap"].get("measurements") or cfg["data"]["measurements"]])
+    with _removed_on_failure(created) as done:
+        rc = _diagnose_into(args, cfg, model, out, outputs)
+        done["ok"] = rc == 0
+    return rc
+
+
+def _diagnose_into(args, cfg, model, out, outputs) -> int:
+    from neckstrength.config import (
+        build_directions,
+        diagnosis_settings,
+        discriminate_settings,
+        gap_blind_dataset,
+        gap_context,
+        gap_settings_text,
+        gap_withheld_activations,
+        head_from_config,
+    )
+    from neckstrength.gap.run import run_diagnosis
+
     try:
         directions = build_directions(cfg)
         ctx = gap_context(cfg, model, directions)
@@ -470,6 +580,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                         "(default: config gap.measurements / data.measurements)")
     d.add_argument("--effects", default=None, help="comma-separated effects (default: config gap.effects)")
     d.add_argument("--out", default=None, help="output folder (default results/gap/<model>/<dataset>)")
+    _add_force(d)
     d.add_argument("--workers", "--threads", dest="workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="processes for the effects' grids and the calibration's screen (default 2, as the "
                         "pipeline rule; each may need about 1 GB more; the answer does not depend on it)")
@@ -491,6 +602,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="trial table -> max-force and activation tables + quality report")
     d.add_argument("trials", help="trial table (CSV, docs/trials.md)")
     d.add_argument("--out", required=True, help="output folder")
+    _add_force(d)
     d.add_argument("--config", default="config/config.yaml",
                    help="settings and test directions (default config/config.yaml)")
     trial_options(d)
@@ -507,6 +619,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--method", choices=["alg4", "smc", "joint"], default="alg4",
                    help="alg4: Algorithm 4 (Ch. 5); smc: Algorithm 4 then ABC-SMC; joint: joint estimator (Ch. 6)")
     d.add_argument("--out", required=True, help="output folder (results, figures, run.json)")
+    _add_force(d)
     d.add_argument("--config", default="config/config.yaml", help="defaults of every setting (not edited)")
     d.add_argument("--seed", type=int, default=None, help="default: the config's seed (recorded in run.json)")
     d.add_argument("--emg", choices=["none", "a3_band"], default="none", help="EMG bounds (as chapter5.participant_emg)")
@@ -523,6 +636,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="C3D files of a manifest -> trial table + EMG signals (c3d extra)")
     d.add_argument("manifest", help="CSV: path,participant,direction,block,trial,frame (one C3D file per trial)")
     d.add_argument("--out", required=True, help="output folder (trials.csv, signals.csv)")
+    _add_force(d)
     d.add_argument("--config", default="config/config.yaml", help="test directions of this config")
     d.add_argument("--channel", action="append", metavar="NAME=LABEL",
                    help="analog label of Fx..Mz or an EMG channel (SCM_R, ...) when it differs (repeatable)")
@@ -530,6 +644,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("example-lab", **_doc("example-lab"), help="write the SYNTHETIC example lab data set")
     d.add_argument("--out", default="data/example_lab", help="output folder (default data/example_lab)")
+    _add_force(d)
     d.add_argument("--config", default="config/config.yaml", help="model and test directions of this config")
     d.add_argument("--seed", type=int, default=20261123, help="seed of the synthetic trials (default 20261123)")
     d.set_defaults(func=_cmd_example_lab)

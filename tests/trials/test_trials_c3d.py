@@ -97,3 +97,31 @@ def test_c3d_round_trip_to_import(tmp_path, directions):
     # EMG read 250 ms before each peak, normalised to the largest envelope over both trials
     assert 0.5 < sel.loc[1, "act_SCM_R"] < 1.0
     assert res.max_force.set_index("direction").loc["back", "P01"] == pytest.approx(sel.loc[1, "force_N"])
+
+
+def _manifest(tmp_path, name="manifest.csv", n=1):
+    rows = []
+    for k in range(n):
+        data, _ = _analogs(seed=k)
+        _write_c3d(tmp_path / f"t{k + 1}.c3d", data, LABELS, ["N", "N", "N", "N*m", "N*m", "N*m", "V"])
+        rows.append({"path": f"t{k + 1}.c3d", "participant": "P01", "direction": "back", "block": "main",
+                     "trial": k + 1, "frame": "skull"})
+    pd.DataFrame(rows).to_csv(tmp_path / name, index=False)
+    return tmp_path / name
+
+
+def test_c3d_to_trials_never_overwrites_its_manifest(tmp_path, capsys, monkeypatch):
+    from neckstrength.cli import main
+
+    monkeypatch.chdir(Path(__file__).resolve().parents[2])
+    manifest = _manifest(tmp_path, "trials.csv")
+    before = manifest.read_bytes()
+    for extra in ([], ["--force"]):
+        assert main(["c3d-to-trials", str(manifest), "--out", str(tmp_path)] + extra) == 2
+        assert f"{manifest}: is an input of this command and is never overwritten" in capsys.readouterr().err
+        assert manifest.read_bytes() == before
+    # another folder: written; a second run there needs --force
+    assert main(["c3d-to-trials", str(manifest), "--out", str(tmp_path / "out")]) == 0
+    assert main(["c3d-to-trials", str(manifest), "--out", str(tmp_path / "out")]) == 2
+    assert "trials.csv: exists (and 1 more output(s)); give --force" in capsys.readouterr().err
+    assert main(["c3d-to-trials", str(manifest), "--out", str(tmp_path / "out"), "--force"]) == 0
