@@ -17,6 +17,8 @@ CSV conventions used throughout ``data/``:
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 import os
 import re
@@ -121,6 +123,33 @@ def declared_units(comments: Iterable[str]) -> dict[str, str]:
     return units
 
 
+def check_field_counts(path: str | Path, n_comment: int = 0) -> None:
+    """Raise :class:`DataValidationError` for a row with more or fewer fields than the header (a truncated or
+    shifted row would otherwise import with blank or misplaced values), naming row, line and both counts. A last
+    line that is short and has no newline is reported as a truncated file."""
+    path = Path(path)
+    text = path.read_text(encoding="utf-8-sig")
+    body = text.split("\n", n_comment)[-1] if n_comment else text
+    reader = csv.reader(io.StringIO(body, newline=""))
+    header = None
+    row = 0
+    for rec in reader:
+        line = n_comment + reader.line_num
+        if header is None:
+            header = rec
+            continue
+        if not rec or (len(rec) == 1 and not rec[0].strip()):
+            continue                                  # blank line (skipped by the reader)
+        row += 1
+        if len(rec) != len(header):
+            at_end = not body.endswith(("\n", "\r")) and reader.line_num == body.count("\n") + 1
+            what = "fewer" if len(rec) < len(header) else "more"
+            problem = (f"{len(rec)} fields, the header has {len(header)} ({what} than the header"
+                       + ("; the file ends in this row without a newline: truncated?)" if at_end
+                          and len(rec) < len(header) else ")"))
+            raise DataValidationError(path, problem, row, line)
+
+
 def check_text_file(path: str | Path) -> None:
     """Raise :class:`DataValidationError` unless ``path`` is UTF-8 text (no NUL byte), naming the line."""
     path = Path(path)
@@ -150,6 +179,7 @@ def read_table(path: str | Path, schema: Schema) -> pd.DataFrame:
         raise DataValidationError(path, "file not found")
     check_text_file(path)
     comments, n_comment = _read_comments(path)
+    check_field_counts(path, n_comment)
     try:
         raw = pd.read_csv(path, comment=None, skiprows=n_comment, dtype=str,
                           keep_default_na=False, skip_blank_lines=True)

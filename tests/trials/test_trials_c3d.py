@@ -125,3 +125,29 @@ def test_c3d_to_trials_never_overwrites_its_manifest(tmp_path, capsys, monkeypat
     assert main(["c3d-to-trials", str(manifest), "--out", str(tmp_path / "out")]) == 2
     assert "trials.csv: exists (and 1 more output(s)); give --force" in capsys.readouterr().err
     assert main(["c3d-to-trials", str(manifest), "--out", str(tmp_path / "out"), "--force"]) == 0
+
+
+def test_manifest_entry_that_is_a_folder_is_refused_at_once(tmp_path):
+    import subprocess
+    import sys
+
+    manifest = _manifest(tmp_path, n=2)
+    (tmp_path / "t2.c3d").unlink()
+    (tmp_path / "t2.c3d").mkdir()                   # the second entry names a folder
+    root = Path(__file__).resolve().parents[2]
+    r = subprocess.run([sys.executable, "-m", "neckstrength.cli", "c3d-to-trials", str(manifest), "--out",
+                        str(tmp_path / "out")], cwd=root, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert f"{manifest}, row 2 (line 3), field 'path': {tmp_path / 't2.c3d'}: is a folder, not a C3D file" in r.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_truncated_c3d_is_refused(tmp_path, directions):
+    manifest = _manifest(tmp_path)
+    full = (tmp_path / "t1.c3d").read_bytes()
+    trials, _ = c3d_to_tables(manifest, directions)
+    assert trials.loc[0, "peak_time_s"] == pytest.approx(1.5, abs=0.01)
+    (tmp_path / "t1.c3d").write_bytes(full[: len(full) // 2])       # cut at half its length
+    with pytest.raises(DataValidationError, match=r"t1.c3d: truncated: the header announces 250 frames, which need "
+                                                  rf"\d+ bytes; the file has {len(full) // 2}"):
+        c3d_to_tables(manifest, directions)

@@ -30,15 +30,69 @@ _MOMENT_SCALE = {"n*m": 1.0, "nm": 1.0, "n.m": 1.0, "n m": 1.0, "n*mm": 1e-3, "n
                  "n mm": 1e-3}
 
 
+def not_a_regular_file(path: str | Path) -> str | None:
+    """Why ``path`` cannot be a C3D file (missing, a folder, a device or pipe), or None for a regular file."""
+    path = Path(path)
+    if not path.exists():
+        return "file not found"
+    if path.is_dir():
+        return "is a folder, not a C3D file"
+    if not path.is_file():
+        return "is not a regular file (a device, pipe or socket), not a C3D file"
+    return None
+
+
+def c3d_header_frames(path: str | Path) -> dict:
+    """The frame counts the C3D header announces and the file size they need (read from the 512-byte header and the
+    parameter section's processor type, without ezc3d).
+
+    Returns ``{'frames', 'analog_per_frame', 'points', 'data_start', 'needed_bytes'}`` (``frames`` None when the
+    16-bit header field is saturated and the count lives only in the parameters); raises
+    :class:`DataValidationError` for a file too short to hold its header.
+    """
+    import struct
+
+    path = Path(path)
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        head = fh.read(512)
+        if len(head) < 512:
+            raise DataValidationError(path, f"truncated: {size} bytes, shorter than the 512-byte C3D header")
+        fh.seek(max(head[0] - 1, 0) * 512 + 3)     # parameter section, byte 4: processor type
+        proc = fh.read(1)
+    proc = proc[0] if proc else 84
+    endian = ">" if proc == 86 else "<"        # 84 Intel, 85 DEC: little-endian integers; 86 MIPS: big-endian
+    points, analog_total, first, last = struct.unpack(endian + "HHHH", head[2:10])
+    if proc == 85:                              # DEC float: the sign is the top bit of the first 16-bit word
+        negative = bool(head[13] & 0x80)
+    else:
+        negative = struct.unpack(endian + "f", head[12:16])[0] < 0
+    data_start = struct.unpack(endian + "H", head[16:18])[0]
+    frames = last - first + 1 if last != 0xFFFF and last >= first else None
+    word = 4 if negative else 2                 # float data when the scale factor is negative
+    needed = (data_start - 1) * 512 + (frames or 0) * (4 * points + analog_total) * word
+    return {"frames": frames, "analog_per_frame": analog_total, "points": points, "data_start": data_start,
+            "needed_bytes": needed, "size": size, "word": word}
+
+
 def load_c3d(path: str | Path) -> tuple[list[str], list[str], float, np.ndarray]:
-    """Analog labels, units, rate (Hz) and data (channels x samples) of a C3D file (needs ezc3d)."""
+    """Analog labels, units, rate (Hz) and data (channels x samples) of a C3D file (needs ezc3d).
+
+    A path that is not a regular file is refused before it is opened; a file shorter than its header's frame count
+    needs, or whose analog data is shorter than the header announces, is refused as truncated.
+    """
     try:
         import ezc3d
     except ImportError as exc:  # pragma: no cover - depends on the optional extra
         raise ImportError("reading C3D files needs the optional extra: pip install 'neckstrength[c3d]'") from exc
     path = Path(path)
-    if not path.exists():
-        raise DataValidationError(path, "file not found")
+    why = not_a_regular_file(path)
+    if why:
+        raise DataValidationError(path, why)
+    h = c3d_header_frames(path)
+    if h["frames"] is not None and h["size"] < h["needed_bytes"]:
+        raise DataValidationError(path, f"truncated: the header announces {h['frames']} frames, which need "
+                                        f"{h['needed_bytes']} bytes; the file has {h['size']}")
     try:
         c = ezc3d.c3d(str(path))
     except Exception as exc:
@@ -49,6 +103,11 @@ def load_c3d(path: str | Path) -> tuple[list[str], list[str], float, np.ndarray]
     units += [""] * (len(labels) - len(units))
     rate = float(np.atleast_1d(a["RATE"]["value"])[0])
     data = np.asarray(c["data"]["analogs"], float)[0]
+    if h["frames"] is not None and h["points"] + h["analog_per_frame"] > 0 and len(labels):
+        expected = h["frames"] * (h["analog_per_frame"] // len(labels))
+        if data.shape[-1] != expected:
+            raise DataValidationError(path, f"truncated: {data.shape[-1]} analog samples per channel, the header "
+                                            f"announces {expected} ({h['frames']} frames)")
     return labels, units, rate, data
 
 
@@ -101,6 +160,11 @@ def c3d_to_tables(manifest: str | Path, directions: pd.DataFrame, channels: Mapp
     frames = dict(frames or default_frames())
     targets = target_wrenches(directions)
     n_comment = len(m.attrs.get("comments", []))
+    for i, r in enumerate(m.to_dict("records")):      # every entry a regular file, before any is read
+        p = Path(r["path"]) if Path(r["path"]).is_absolute() else Path(manifest).parent / r["path"]
+        why = not_a_regular_file(p)
+        if why:
+            raise DataValidationError(manifest, f"{p}: {why}", i + 1, n_comment + 2 + i, "path")
     rows, sigs = [], []
     for i, r in enumerate(m.to_dict("records")):
         line = n_comment + 2 + i
