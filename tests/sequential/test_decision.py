@@ -218,3 +218,19 @@ def test_estimate_writes_the_decision_for_a_model_with_the_group(tmp_path):
     assert len(hist) == len(prep["used"]) + 1 and hist["t"].tolist() == list(range(len(hist)))
     assert got["decision"] in ("deficit", "no deficit", "undecided") and 0 <= got["p_deficit"] <= 1
     assert got["log_bf"] == pytest.approx(hist["log_bf"].iloc[-1], rel=1e-5)
+
+
+def test_two_threads_give_the_same_numbers(p2m7):
+    model, data = p2m7
+    s = DecisionSettings(group=("TS-E",), n_candidates=300, n_moves=2)
+    out = []
+    for threads in (1, 2):
+        dec = DeficitDecision(model, data.directions, data.U, data.force_scale, model.strengths, s, JointSettings(),
+                              np.random.default_rng(4), n_threads=threads)
+        assert dec.parallel == (threads == 2)
+        for d, f in zip(data.directions[:4], data.forces[:4]):
+            dec.push(d, float(f) * 0.8)
+        out.append((dec.log_bf(), dec.posts["deficit"].F.copy()))
+    # the same to the solver's rounding (another basis cache can return another optimal vertex's last bits)
+    assert out[0][0] == pytest.approx(out[1][0], rel=1e-9, abs=1e-9)
+    assert np.allclose(out[0][1], out[1][1], rtol=1e-9, atol=0)

@@ -206,20 +206,36 @@ class DeficitDecision:
                      noise_rel=settings.noise, resample_ess=settings.resample_ess, n_moves=settings.n_moves,
                      max_resamples=settings.max_resamples)
         self.joint = js
-        cache = BasisCache() if cache is None else cache
         seeds = rng.bit_generator.seed_seq.spawn(2) if hasattr(rng.bit_generator, "seed_seq") else None
         rngs = ([np.random.default_rng(s) for s in seeds] if seeds is not None
                 else [np.random.default_rng(rng.integers(2 ** 63)) for _ in range(2)])
-        self.posts = {
-            h: HypothesisPosterior(model, directions, U, force_scale, self.f0, js,
-                                   HypothesisPrior(self.f0, settings.population_sd, self.gidx, settings.deficit_range,
-                                                   deficit=(h == "deficit")),
-                                   r, n_threads=n_threads, cache=cache,
-                                   fresh_draws=settings.sampler == "fresh_draws")
-            for h, r in zip(("normal", "deficit"), rngs)}
+        # with 2 threads or more the two samplers run side by side, each with its own basis cache (a cache is not
+        # shared between threads) and half the threads; the numbers are the same (own random streams, exact solver)
+        self.parallel = n_threads >= 2
+        each = max(1, n_threads // 2) if self.parallel else n_threads
+        caches = ([BasisCache() if cache is None else cache, BasisCache()] if self.parallel
+                  else [BasisCache() if cache is None else cache] * 2)
+
+        def build(h, r, c):
+            return HypothesisPosterior(model, directions, U, force_scale, self.f0, js,
+                                       HypothesisPrior(self.f0, settings.population_sd, self.gidx,
+                                                       settings.deficit_range, deficit=(h == "deficit")),
+                                       r, n_threads=each, cache=c, fresh_draws=settings.sampler == "fresh_draws")
+
+        jobs = list(zip(("normal", "deficit"), rngs, caches))
+        self.posts = dict(zip(("normal", "deficit"), self._both(lambda j: build(*j), jobs)))
         self.directions = list(directions)
         self._snaps: list[dict] = []
         self.history: list[dict] = [self.summary()]
+
+    def _both(self, fn, items: list) -> list:
+        """``fn`` of both items, side by side in two threads when ``parallel`` (exceptions re-raised)."""
+        if not self.parallel:
+            return [fn(x) for x in items]
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(2) as ex:
+            return [f.result() for f in [ex.submit(fn, x) for x in items]]
 
     # -- state
     @property
@@ -285,8 +301,7 @@ class DeficitDecision:
     def push(self, direction: str, force: float, activations=None) -> None:
         self._snaps.append({h: _snapshot(p) for h, p in self.posts.items()})
         try:
-            for p in self.posts.values():
-                p.update(direction, force, activations)
+            self._both(lambda p: p.update(direction, force, activations), list(self.posts.values()))
         except Exception:
             s = self._snaps.pop()
             for h, p in self.posts.items():
