@@ -38,8 +38,9 @@ def test_file_ending_inside_a_row_is_truncation(tmp_path, directions):
     cut = lines[:-1] + [",".join(lines[-1].split(",")[:9])]        # cut after a wrench column, no newline
     p = tmp_path / "trials.csv"
     p.write_text("\n".join(cut))
-    with pytest.raises(DataValidationError, match=r"row \d+ \(line 231\): 9 fields, the header has \d+ \(fewer than the "
-                                                  r"header; the file ends in this row without a newline: truncated\?\)"):
+    msg = (r"row \d+ \(line 231\): 9 fields, the header has \d+ \(fewer than the header; the file ends in this row "
+           r"without a newline: truncated\?\)")
+    with pytest.raises(DataValidationError, match=msg):
         import_trials(p, directions)
 
 

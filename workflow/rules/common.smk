@@ -6,7 +6,8 @@ from neckstrength.config import ConfigError, check_config_datasets, validate_con
 
 # The config (config/config.yaml merged with any --configfile / --config) is checked as the CLI checks it: an
 # unknown key (with the closest valid one suggested) or a value outside its domain stops the run at start-up.
-CONFIG_SOURCE = "config (" + ", ".join(["config/config.yaml"] + [os.path.relpath(f) for f in workflow.overwrite_configfiles]) + ")"
+CONFIG_FILES = ["config/config.yaml"] + [os.path.relpath(f) for f in workflow.overwrite_configfiles]
+CONFIG_SOURCE = f"config ({', '.join(CONFIG_FILES)})"
 try:
     validate_config(config, os.path.join(workflow.current_basedir, "../schemas/config.schema.yaml"), CONFIG_SOURCE)
 except ConfigError as exc:
