@@ -48,6 +48,8 @@ rule clinician_decision:
         directions="results/geometry/directions.csv",
     output:
         runs="results/clinician/{named}/decision_runs.csv",
+        per_run="results/clinician/{named}/decision_per_run.csv",
+        rule_grid="results/clinician/{named}/decision_rule_grid.csv",
         roc=report(
             "results/clinician/{named}/decision_roc.csv",
             caption="../report/clinician_decision.rst",

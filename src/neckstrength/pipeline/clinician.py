@@ -193,8 +193,8 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
     from neckstrength.config import decision_settings, decision_study_settings
     from neckstrength.gap.forked import fork_map
     from neckstrength.sequential.decision_plots import fig_decision_study
-    from neckstrength.sequential.decision_study import reliability_table, roc_table, run_decision_study, \
-        sequential_table
+    from neckstrength.sequential.decision_study import reliability_table, roc_table, rule_grid, \
+        run_decision_study, sequential_table
 
     model = model_from_config(full_model_from_config(config), config, model_name)
     d, U = model_directions_table(model, load_directions(directions_csv))
@@ -233,7 +233,8 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
     runs = runs.sort_values(["participant", "protocol", "t"], kind="stable").reset_index(drop=True)
     cps = tuple(t for t in study.checkpoints if t <= study.n_max)
     roc = roc_table(runs, cps, study.false_alarm, decision.p_decide)
-    per, seq = sequential_table(runs, decision.p_decide)
+    per, seq = sequential_table(runs, decision.p_decide, decision.min_tests)
+    grid = rule_grid(runs)
     rel = reliability_table(runs, cps)
     hdr = [f"deficit decision on {model_name} (issue 31): {decision.label()}; per hypothesis {decision.n_candidates} "
            f"candidates, resample-move below ESS {decision.resample_ess}, {decision.n_moves} MH moves; seed {seed}",
@@ -248,10 +249,14 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
                                           f"chosen on these normals (optimistic); rule_*: P(deficit) >= "
                                           f"{decision.p_decide} after t tests (Wilson 95% intervals)"],
                      float_format="%.4g")
-    atomic_write_csv(seq, out_sequential, hdr + [f"the stopping rule: decided at the first test with P >= "
-                                                 f"{decision.p_decide} or <= {1 - decision.p_decide:.2g}"],
+    atomic_write_csv(seq, out_sequential, hdr + [f"the stopping rule: decided at the first test from the "
+                                                 f"{decision.min_tests}th with P >= {decision.p_decide} or <= "
+                                                 f"{1 - decision.p_decide:.2g}"],
                      float_format="%.4g")
     atomic_write_csv(per, Path(out_sequential).with_name("decision_per_run.csv"), hdr, float_format="%.6g")
+    atomic_write_csv(grid, Path(out_sequential).with_name("decision_rule_grid.csv"),
+                     hdr + ["the stopping rule's outcome for other thresholds and minimum numbers of tests (the same "
+                            "runs: the test order does not depend on the rule)"], float_format="%.4g")
     atomic_write_csv(rel, out_reliability, hdr + ["reliability of P(deficit) at the cohort's share of deficits "
                                                   f"({study.cohort.n_deficit / n:.0%}; prevalence setting "
                                                   f"{decision.prevalence:.0%}); Jeffreys 95% intervals"],

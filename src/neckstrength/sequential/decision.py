@@ -59,7 +59,8 @@ class DecisionSettings:
     noise_source: str = "stated default"        # where ``noise`` comes from (printed with the answer)
     prevalence: float = 0.5                     # prior P(deficit) the clinician sets
     p_decide: float = 0.95                      # decide when P >= p_decide (deficit) or P <= 1 - p_decide (none)
-    n_candidates: int = 2000                    # per hypothesis
+    min_tests: int = 5                          # ... but not before this many tests
+    n_candidates: int = 1000                    # per hypothesis
     # each hypothesis's sampler (benchmarks/bench_decision.py: log BF of 'weak' over seeds against these)
     resample_ess: float = 0.3                   # resample-move when the ESS falls below this share
     n_moves: int = 10                           # Metropolis-Hastings steps per resample
@@ -81,6 +82,8 @@ class DecisionSettings:
             raise ValueError(f"clinician.decision.sampler: resample_move or fresh_draws, not {self.sampler!r}")
         if not 0 < self.resample_ess <= 1 or self.n_moves < 1 or self.max_resamples < 1:
             raise ValueError("clinician.decision: resample_ess in (0, 1], n_moves >= 1, max_resamples >= 1")
+        if self.min_tests < 1:
+            raise ValueError(f"clinician.decision.min_tests must be >= 1, got {self.min_tests}")
         if self.n_candidates < 100:
             raise ValueError(f"clinician.decision.n_candidates must be >= 100, got {self.n_candidates}")
         if not self.group:
@@ -265,6 +268,8 @@ class DeficitDecision:
         return float(p * (1 - p) * self.log_bf_se())
 
     def decision(self) -> str:
+        if len(self.tested) < self.settings.min_tests:
+            return "undecided"
         p = self.p_deficit()
         if p >= self.settings.p_decide:
             return "deficit"

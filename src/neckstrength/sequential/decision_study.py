@@ -135,7 +135,7 @@ def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     d = 1 + z ** 2 / n
     c = (p + z ** 2 / (2 * n)) / d
     h = z * np.sqrt(p * (1 - p) / n + z ** 2 / (4 * n ** 2)) / d
-    return float(c - h), float(c + h)
+    return float(max(0.0, c - h)), float(min(1.0, c + h))
 
 
 def roc_curve(runs: pd.DataFrame, protocol: str, t: int) -> pd.DataFrame:
@@ -147,6 +147,13 @@ def roc_curve(runs: pd.DataFrame, protocol: str, t: int) -> pd.DataFrame:
     return pd.DataFrame({"protocol": protocol, "t": t, "threshold_log_bf": thr,
                          "false_alarm": [(neg >= x).mean() for x in thr],
                          "sensitivity": [(pos >= x).mean() for x in thr]})
+
+
+def rule_grid(runs: pd.DataFrame, p_decides: Sequence[float] = (0.9, 0.95, 0.99),
+              min_tests: Sequence[int] = (1, 3, 5, 10)) -> pd.DataFrame:
+    """:func:`sequential_table` for every combination of threshold and minimum number of tests (how the stopping
+    rule's outcome depends on its two choices; read off the same runs)."""
+    return pd.concat([sequential_table(runs, p, m)[1] for p in p_decides for m in min_tests], ignore_index=True)
 
 
 def roc_table(runs: pd.DataFrame, checkpoints: Sequence[int], false_alarm: float = 0.05,
@@ -180,13 +187,15 @@ def roc_table(runs: pd.DataFrame, checkpoints: Sequence[int], false_alarm: float
     return pd.DataFrame(out)
 
 
-def sequential_table(runs: pd.DataFrame, p_decide: float = 0.95) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """The stopping rule: per run the first t at which P(deficit) >= p_decide (deficit) or <= 1 - p_decide (no
-    deficit), else undecided after the last test; per protocol and kind the shares and the median tests."""
+def sequential_table(runs: pd.DataFrame, p_decide: float = 0.95,
+                     min_tests: int = 1) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The stopping rule: per run the first t >= ``min_tests`` at which P(deficit) >= p_decide (deficit) or <=
+    1 - p_decide (no deficit), else undecided after the last test; per protocol and kind the shares and the median
+    tests. The test order does not depend on the rule, so any rule can be read off the same runs."""
     per = []
     for (i, protocol), g in runs.groupby(["participant", "protocol"], sort=False):
         g = g.sort_values("t")
-        g1 = g[g["t"] > 0]
+        g1 = g[g["t"] >= max(1, min_tests)]
         hit = g1[(g1["p_deficit"] >= p_decide) | (g1["p_deficit"] <= 1 - p_decide)]
         if len(hit):
             r = hit.iloc[0]
@@ -199,7 +208,7 @@ def sequential_table(runs: pd.DataFrame, p_decide: float = 0.95) -> tuple[pd.Dat
     out = []
     for (protocol, kind), g in per.groupby(["protocol", "kind"], sort=False):
         n = len(g)
-        row = {"protocol": protocol, "kind": kind, "n": n}
+        row = {"protocol": protocol, "kind": kind, "p_decide": p_decide, "min_tests": min_tests, "n": n}
         for d in ("deficit", "no deficit", "undecided"):
             k = int((g["decision"] == d).sum())
             lo, hi = _wilson(k, n)
