@@ -1,7 +1,9 @@
 """The scorecard's honesty checks: every conclusion test can fail (a perturbed result flips its verdict), a test
 that agrees by chance too often is not used, censored iteration counts are compared as censored, the degrees of
-freedom of the B.3-recovered strengths are counted as calibrated items, and the Chapter 4 claim about unproducible
-directions is evaluated for every variant with both outcomes possible.
+freedom of the B.3-recovered strengths are counted as calibrated items, the Chapter 4 claim about unproducible
+directions is evaluated for every variant with both outcomes possible, items that match by construction (erratum
+cells placed by our derivation, D(f_c) at the noise-free ceiling, sigma_c at a clip limit, censored iteration counts)
+are their own kind, and a scorer error is 'not evaluated' with its reason.
 
 Fast: no pipeline run (synthetic rows and small synthetic tables in a temporary directory).
 """
@@ -12,9 +14,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from neckstrength.report.scorecard import (CALIBRATED, CONCLUSION_TESTS, DIFFERS, INDEPENDENT, MATCHES,
-                                           SAME_CONCLUSION, _row, build_scorecard, chance_rates, summarize,
-                                           tolerance_table, tolerances)
+from neckstrength.report.scorecard import (BY_CONSTRUCTION, CALIBRATED, CONCLUSION_TESTS, DIFFERS, INDEPENDENT,
+                                           MATCHES, NOT_EVALUATED, SAME_CONCLUSION, _row, build_scorecard,
+                                           chance_rates, summarize, tolerance_table, tolerances)
 
 CONFIG = {"seed": 20261123}
 N = 8
@@ -230,3 +232,132 @@ def test_unproducible_direction_claim_can_fail(variant, n_muscles, status, holds
     assert len(row) == 1
     assert bool(row["holds"].item()) is holds
     assert row["verdict"].item() == ("holds" if holds else "does not hold")
+
+
+# --------------------------------------------------------------------------- matches by construction
+
+def _b1_fixture(tmp_path, errata=True):
+    """A three-cell 'Table B.1' comparison: row 11 C4-C5 pitch placed by the erratum because it equals our derived
+    value, row 33 C0-C1 pitch relocated on the evidence of Table B.3, row 5 as printed."""
+    thesis = tmp_path / "data" / "thesis"
+    thesis.mkdir(parents=True)
+    (thesis / "errata_B1.csv").write_text(
+        "# units: printed=m; corrected=m\nindex,name,field,printed,corrected,evidence\n"
+        "11,sternohyoid,C0-C1_pitch,-0.0509,,printed triple equals the derived C4-C5 triple\n"
+        "11,sternohyoid,C4-C5_pitch,,-0.0509,printed under C0-C1 (derived -0.050926)\n"
+        "11,sternohyoid,C6-C7_pitch,,-0.0453,not printed in the seed; OpenSim-derived value rounded to 4 decimals\n"
+        "33,long cap sklc4,C0-C1_pitch,,-0.0120,B.3 Lcap-R C0-C1 pitch\n")
+    d = tmp_path / "results" / "model"
+    d.mkdir(parents=True)
+    (d / "momentarm_vs_B1.csv").write_text(
+        "index,name,joint,axis,thesis_B1,derived,difference,rel_difference\n"
+        "5,m5,strength,,100,100,0,0\n"
+        "5,m5,C2-C3,pitch,0.0100,0.01002,2e-05,0.002\n"
+        "11,sternohyoid,C4-C5,pitch,-0.0509,-0.050926,-2.6e-05,-0.0005\n"
+        "11,sternohyoid,C6-C7,pitch,-0.0453,-0.045290,1e-05,0.0002\n"
+        "33,long cap sklc4,C0-C1,pitch,-0.0120,-0.012010,-1e-05,-0.0008\n")
+    cfg = {"seed": 1, "data": {"thesis_dir": str(thesis)}, "model": {"apply_b1_errata": errata}}
+    return d / "momentarm_vs_B1.csv", cfg
+
+
+def test_b1_cells_placed_by_the_erratum_from_our_derivation_are_by_construction(tmp_path):
+    path, cfg = _b1_fixture(tmp_path)
+    sc, _ = build_scorecard([str(path)], cfg)
+    kind = {r["item"].split(":")[0] + " " + r["item"].split(": ")[1].split()[0]: r["kind"]
+            for r in sc.to_dict("records")}
+    assert kind == {"row 5 m5 C2-C3": INDEPENDENT, "row 11 sternohyoid C4-C5": BY_CONSTRUCTION,
+                    "row 11 sternohyoid C6-C7": BY_CONSTRUCTION, "row 33 long cap sklc4 C0-C1": INDEPENDENT}
+    assert (sc["verdict"] == MATCHES).all()  # shown with its verdict ...
+    bc = sc[sc["kind"] == BY_CONSTRUCTION]
+    assert bc["basis"].str.contains("erratum").all() and not bc["basis"].str.contains("nothing fitted").any()
+    assert bc["reason"].str.contains("never counted as reproduced").all()
+    assert not sc.loc[sc["kind"] == INDEPENDENT, "reason"].str.contains("by construction").any()
+    summ = summarize(sc).set_index(["chapter", "kind"])
+    # ... but not counted among the independent matches
+    assert summ.loc[("all", INDEPENDENT), "matches"] == 2 and summ.loc[("all", BY_CONSTRUCTION), "items"] == 2
+    # without the erratum the cells are as printed: nothing was placed by our derivation
+    path2, cfg2 = _b1_fixture(tmp_path / "plain", errata=False)
+    sc2, _ = build_scorecard([str(path2)], cfg2)
+    assert (sc2["kind"] == INDEPENDENT).all()
+
+
+def _estimates_table(tmp_path, rows, model="p2m7"):
+    """A Chapter 5 comparison table (dataset, quantity, muscle, thesis, ours, note) under results/chapter5/."""
+    d = tmp_path / "results" / "chapter5" / model
+    d.mkdir(parents=True)
+    lines = ["dataset,quantity,muscle,thesis,ours,difference,rel_difference,note"]
+    for ds, q, m, th, ours, note in rows:
+        lines.append(f"{ds},{q},{m},{th},{ours},{ours - th},,{note}")
+    (d / "table_vs_thesis.csv").write_text("\n".join(lines) + "\n")
+    return d / "table_vs_thesis.csv"
+
+
+def _kinds(sc):
+    return dict(zip(sc["item"], sc["kind"])), dict(zip(sc["item"], sc["verdict"]))
+
+
+def test_d_fc_at_the_noise_free_ceiling_is_by_construction(tmp_path):
+    path = _estimates_table(tmp_path, [
+        ("norm", "f_a", "TC-E", 100, 100, ""),       # 'norm' is simulated (f_a printed)
+        ("weak", "f_a", "TC-E", 50, 50, ""),
+        ("norm", "D_fc", "", 1.00, 0.998, ""),        # both at the ceiling of noise-free data
+        ("weak", "D_fc", "", 0.99, 0.96, ""),         # ours below it: a real difference
+        ("S005", "D_fc", "", 0.995, 0.999, ""),       # a participant's data are not noise-free
+    ])
+    sc, _ = build_scorecard([str(path)], {"seed": 1, "data": {"thesis_dir": str(tmp_path / "none")}})
+    kind, verdict = _kinds(sc)
+    assert kind == {"norm: D_fc": BY_CONSTRUCTION, "weak: D_fc": INDEPENDENT, "S005: D_fc": INDEPENDENT}
+    assert verdict["norm: D_fc"] == MATCHES and verdict["weak: D_fc"] != MATCHES
+    assert "ceiling" in sc.loc[sc["item"] == "norm: D_fc", "basis"].item()
+
+
+def test_sigma_c_at_a_clip_limit_on_both_sides_is_by_construction(tmp_path):
+    path = _estimates_table(tmp_path, [
+        ("S005", "sigma_c", "TC-E", 0.30, 0.3, ""),    # both at the upper clip limit
+        ("S005", "sigma_c", "TS-B", 0.01, 0.01, ""),   # both at the lower one
+        ("S005", "sigma_c", "TC-F", 0.30, 0.28, ""),   # ours below the limit: matches, and that is evidence
+        ("S005", "sigma_c", "TS-F", 0.12, 0.12, ""),   # inside the range
+    ])
+    cfg = {"seed": 1, "data": {"thesis_dir": str(tmp_path / "none")}, "chapter5": {"sigma_clip": [0.01, 0.3]}}
+    sc, _ = build_scorecard([str(path)], cfg)
+    kind, verdict = _kinds(sc)
+    assert kind == {"S005: TC-E sigma_c": BY_CONSTRUCTION, "S005: TS-B sigma_c": BY_CONSTRUCTION,
+                    "S005: TC-F sigma_c": INDEPENDENT, "S005: TS-F sigma_c": INDEPENDENT}
+    assert set(verdict.values()) == {MATCHES}
+    # the limits come from the config: with another clip range the same numbers are independent
+    cfg["chapter5"]["sigma_clip"] = [0.02, 0.5]
+    sc2, _ = build_scorecard([str(path)], cfg)
+    assert (sc2["kind"] == INDEPENDENT).all()
+
+
+def test_censored_iteration_counts_on_both_sides_are_by_construction(tmp_path):
+    path = _ch5_table(tmp_path, [
+        ("A", 30, 30, "thesis did not converge; ours did not converge"),
+        ("B", 30, 29, "thesis did not converge"),
+        ("D", 11, 12, ""),
+    ])
+    sc, _ = build_scorecard([str(path)], {"seed": 1, "data": {"thesis_dir": str(tmp_path / "none")}})
+    kind, verdict = _kinds(sc)
+    assert kind == {"A: iters": BY_CONSTRUCTION, "B: iters": INDEPENDENT, "D: iters": INDEPENDENT}
+    assert verdict["A: iters"] == MATCHES and "maxIter" in sc.loc[sc["item"] == "A: iters", "basis"].item()
+    summ = summarize(sc).set_index(["chapter", "kind"])
+    assert summ.loc[("Chapter 5", INDEPENDENT), "matches"] == 1  # only D
+    assert summ.loc[("Chapter 5", BY_CONSTRUCTION), "matches"] == 1
+
+
+def test_a_scorer_error_is_not_evaluated_with_its_reason(tmp_path):
+    """The Table 5.1 caption claim needs the unweakened f_a; without 'norm' in the table and without a readable
+    thesis table, the claim is 'not evaluated' with the exception as its reason, not 'does not hold'."""
+    path = _estimates_table(tmp_path, [
+        ("weak", "f_a", "TC-E", 50, 50, ""),
+        ("weak", "f_c", "TC-E", 68, 57, ""),
+        ("weak", "sigma_c", "TC-E", 0.05, 0.06, ""),
+    ])
+    sc, skipped = build_scorecard([str(path)], {"seed": 1, "data": {"thesis_dir": str(tmp_path / "none")}})
+    assert not sc["item"].str.contains("identified with high confidence").any()
+    claim = skipped[skipped["item"].str.contains("identified with high confidence")]
+    assert len(claim) == 1 and claim["verdict"].item() == NOT_EVALUATED
+    assert claim["reason"].item().startswith("scorer error: ") and "Error" in claim["reason"].item()
+    summ = summarize(sc, skipped).set_index(["chapter", "kind"])
+    assert summ.loc[("Chapter 5", INDEPENDENT), "not_evaluated"] == 1
+    assert summ.loc[("all", INDEPENDENT), "items"] == len(sc)  # counted apart from the scored items

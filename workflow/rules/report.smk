@@ -29,8 +29,8 @@ rule report_scorecard:
             labels={"table": "tolerances and their reasons"},
         ),
     params:
-        settings=settings("chapter3.mixed_model.alpha", "chapter4", "chapter5.eps_D", "data.model_dir",
-            "data.thesis_dir", "model", "seed"),
+        settings=settings("chapter3.mixed_model.alpha", "chapter4", "chapter5.eps_D", "chapter5.sigma_clip",
+            "data.model_dir", "data.thesis_dir", "model", "seed"),
         tolerances=config["report"]["tolerances"],
     log:
         "logs/report/scorecard.log",

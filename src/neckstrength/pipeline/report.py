@@ -59,8 +59,10 @@ def report_scorecard(config: Mapping, inputs: Sequence[str], out_table, out_summ
     atomic_write_csv(summary, out_summary,
                      ["thesis scorecard summary: items per chapter, kind and verdict (results/report/scorecard.csv)",
                       headline(summary),
-                      "not_evaluated: printed claims this configuration cannot check (variants not computed): "
-                      + ("; ".join(skipped["item"]) if len(skipped) else "none")])
+                      "not_evaluated: printed items this run could not score (claims this configuration cannot "
+                      "check, scorer errors), each with its reason: "
+                      + ("; ".join(f"{i} [{r}]" for i, r in zip(skipped["item"], skipped["reason"]))
+                         if len(skipped) else "none")])
     atomic_write_csv(tolerance_table(tols, scored.attrs.get("chance")), out_tolerances,
                      ["scorecard tolerances and conclusion thresholds (neckstrength.report.scorecard.TOLERANCES), each with "
                       "its reasoning; overridden = set in config report.tolerances; conclusion tests beside their "

@@ -18,6 +18,16 @@ Kinds (:data:`KINDS`):
     cohort (drawn to Table 3.2 and the printed limits of agreement). Agreement of a calibrated row shows that the
     calibration worked, not that the thesis was reproduced.
 
+``by construction``
+    the agreement follows from how the computation was set up, whatever the implementation does: the Table B.1
+    cells that the erratum (``errata_B1.csv``) relocated or inserted because they equal our derived moment arms
+    (its evidence cites the derivation); D(f_c) on a noise-free simulated data set where both runs sit at the
+    score's ceiling 1 (within the D(f_c) tolerance); sigma_c where both runs sit at the same clip limit of
+    ``chapter5.sigma_clip``; an iteration count where both runs stopped at ``max_iter`` without converging (the
+    cap is copied from the thesis). These rows are shown with their verdict and the reason in ``basis``, and never
+    counted as reproduced. A row where only one side sits at such a value keeps its kind: that difference is
+    evidence.
+
 Inputs used as printed (Table B.1 strengths, Tables A.2/A.3, f_a of the simulated data sets) are not rows at all.
 
 Verdict classes (:data:`VERDICTS`), decided per row in this order:
@@ -32,6 +42,10 @@ Verdict classes (:data:`VERDICTS`), decided per row in this order:
     used (its rows can only match or differ; the ``conclusion`` column says so).
 ``differs``
     neither.
+
+``not evaluated`` (not a verdict of a scored row; counted apart in the summary's ``not_evaluated`` column, each
+item with its reason in the summary's header): a claim this configuration cannot check (Chapter 4 variants not
+computed), or a scorer error while building an item (the reason names the exception type and message).
 
 Every tolerance and every conclusion threshold lives in :data:`TOLERANCES`, with its reasoning; none was chosen by
 looking at how close our numbers come to the thesis (no tuning).  ``report.tolerances`` in the config may override
@@ -84,7 +98,10 @@ INDEPENDENT = "independent"
 CALIBRATED = "calibrated"
 
 
-KINDS = (INDEPENDENT, CALIBRATED)
+BY_CONSTRUCTION = "by construction"
+
+
+KINDS = (INDEPENDENT, CALIBRATED, BY_CONSTRUCTION)
 
 
 COLUMNS = ["chapter", "source", "item", "kind", "thesis", "ours", "difference", "verdict", "tolerance", "conclusion",
@@ -208,6 +225,7 @@ REASONS = {
     "random": "random estimator: different random stream from the thesis",
     "q": "unspecified parameter: rejection percentile q (90) not stated in the thesis",
     "grouping": "reconstructed grouping: the sagittal groupings are described only in words (docs/model.md)",
+    "construction": "agreement by construction (basis says why): shown, never counted as reproduced",
 }
 
 
@@ -392,10 +410,16 @@ def _row(chapter, source, item, thesis, ours, difference, within, tolerance, con
             "_stratum": f"{file}|{stratum}"}
 
 
-def _not_evaluated(chapter, source, item, conclusion, file) -> dict:
-    r = _row(chapter, source, item, "holds", NOT_EVALUATED, math.nan, False, "", conclusion, (), file)
-    r["verdict"] = NOT_EVALUATED
+def _not_evaluated(chapter, source, item, conclusion, file, reason: str, thesis: str = "holds") -> dict:
+    """An item this run does not score, with ``reason`` (why: not computed here, or the scorer's error)."""
+    r = _row(chapter, source, item, thesis, NOT_EVALUATED, math.nan, False, "", conclusion, (), file)
+    r["verdict"], r["reason"] = NOT_EVALUATED, reason
     return r
+
+
+def _error_text(e: BaseException) -> str:
+    """'scorer error: KeyError: 'x'' -- the reason of an item whose scorer raised."""
+    return f"scorer error: {type(e).__name__}: {e}"
 
 
 def _reason(verdict: str, codes: Sequence[str], always: Sequence[str] = ()) -> str:
@@ -575,22 +599,49 @@ def score_b_params(ctx: Context) -> list[dict]:
     return rows
 
 
+def b1_errata_from_derivation(config: Mapping) -> dict[tuple[int, str], str]:
+    """Table B.1 cells that the erratum (``errata_B1.csv``, applied with ``model.apply_b1_errata``) relocated or
+    inserted because they equal our derived moment arms: (row index, 'joint_axis') -> the erratum's evidence.
+
+    An erratum row counts when it sets a value (``corrected`` not empty) and its evidence cites the derivation
+    (the word 'derived'); a relocation justified by another printed table (rows 33/34 from Table B.3) does not.
+    Empty without the erratum applied."""
+    if not config.get("model", {}).get("apply_b1_errata", True):
+        return {}
+    path = Path(config.get("data", {}).get("thesis_dir", "data/thesis")) / "errata_B1.csv"
+    if not path.exists():
+        return {}
+    err = _read(path)
+    out = {}
+    for r in err.to_dict("records"):
+        ev = str(r.get("evidence", ""))
+        if not math.isnan(_num(r.get("corrected"))) and re.search(r"derived", ev, re.I):
+            out[(int(r["index"]), str(r["field"]))] = ev
+    return out
+
+
 def score_b1(ctx: Context) -> list[dict]:
     df = _read(ctx.path)
     df = df[df["joint"] != "strength"]  # B.1 strengths are inputs (used as printed), not reproduced
     t = ctx.tols["b1_moment_arm_m"]
+    errata = b1_errata_from_derivation(ctx.config)
     rows = []
     for r in df.to_dict("records"):
         th, o = _num(r["thesis_B1"]), _num(r["derived"])
         d = o - th
         within = abs(d) <= t.value * (1 + 1e-6)
         st_, so = _sign(th, t.value), _sign(o, t.value)
+        ev = errata.get((int(r["index"]), f"{r['joint']}_{r['axis']}"))
+        kind, basis = INDEPENDENT, "derived from the public OpenSim model geometry; nothing fitted to Table B.1"
+        if ev is not None:
+            kind, basis = BY_CONSTRUCTION, (
+                "cell relocated or inserted by the Table B.1 erratum (errata_B1.csv) because it equals our derived "
+                f"moment arm ({ev}): agreement by construction")
         rows.append(_row("Appendix B", "Table B.1", f"row {r['index']} {r['name']}: {r['joint']} {r['axis']} moment "
                          "arm (m)", _fmt(th), _fmt(o), d, within,
                          _tol_text(t, f"|d| <= {t.value:g} m (print rounding)"),
-                         f"same sign: thesis {st_:+d}, ours {so:+d}", ("print",), ctx.rel,
-                         basis="derived from the public OpenSim model geometry; nothing fitted to Table B.1",
-                         test="moment_arm_sign", tv=th, ov=o, aux=(t.value, math.nan), stratum="B.1"))
+                         f"same sign: thesis {st_:+d}, ours {so:+d}", ("print",), ctx.rel, kind=kind,
+                         basis=basis, test="moment_arm_sign", tv=th, ov=o, aux=(t.value, math.nan), stratum="B.1"))
     return rows
 
 
@@ -736,7 +787,8 @@ def score_ch4_claims(ctx: Context) -> list[dict]:
     for r in df.to_dict("records"):
         verdict = str(r["verdict"])
         if verdict not in ("holds", "does not hold"):
-            rows.append(_not_evaluated("Chapter 4", f"Sec. {r['section']}", r["claim"], str(r["numbers"]), ctx.rel))
+            rows.append(_not_evaluated("Chapter 4", f"Sec. {r['section']}", r["claim"], str(r["numbers"]), ctx.rel,
+                                       f"not evaluated in this configuration: {r['numbers']}"))
             continue
         rows.append(_row("Chapter 4", f"Sec. {r['section']}", f"{r['claim']} [{r['variants']}]", "holds", verdict,
                          math.nan, verdict == "holds",
@@ -749,20 +801,19 @@ def score_ch4_claims(ctx: Context) -> list[dict]:
 
 
 def _baseline(df: pd.DataFrame, ctx: Context, model: str | None, thesis_table: str | None) -> dict:
-    """Printed f_a of the unweakened simulated set ('norm' or 'Sim'), for the Table 5.1 caption claim."""
+    """Printed f_a of the unweakened simulated set ('norm' or 'Sim'), for the Table 5.1 caption claim: from the
+    comparison table, else from the thesis table. Raises when neither can be read (the caller turns that into a
+    'not evaluated' item with the error as its reason)."""
     fa = df[df["quantity"] == "f_a"]
     for ds in ("norm", "Sim"):
         sub = fa[fa["dataset"] == ds]
         if len(sub):
             return dict(zip(sub["muscle"], sub["thesis"].astype(float)))
-    try:
-        from neckstrength.estimation.datasets import thesis_result_table
+    from neckstrength.estimation.datasets import thesis_result_table
 
-        t = thesis_result_table(ctx.config["data"]["thesis_dir"], model or "p2m7", thesis_table)
-        t = t[(t["quantity"] == "f_a") & t["dataset"].isin(["norm", "Sim"])]
-        return dict(zip(t["group"], t["value_numeric"].astype(float)))
-    except Exception:  # noqa: BLE001 - no baseline: the caption claim is then not available
-        return {}
+    t = thesis_result_table(ctx.config["data"]["thesis_dir"], model or "p2m7", thesis_table)
+    t = t[(t["quantity"] == "f_a") & t["dataset"].isin(["norm", "Sim"])]
+    return dict(zip(t["group"], t["value_numeric"].astype(float)))
 
 
 def _printed_group_strengths(ctx: Context, model: str | None) -> dict:
@@ -802,6 +853,7 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
     df = _read(ctx.path)
     tc, tab = (ctx.tols[k] for k in ("estimate_rel", "identified_sigma"))
     eps_d = float(ctx.config.get("chapter5", {}).get("eps_D", 0.95))
+    clip = [float(x) for x in ctx.config.get("chapter5", {}).get("sigma_clip", SIGMA_CLIP)]
     thesis_col = "thesis" if "thesis" in df.columns else "thesis_value"
     ours_col = "ours" if "ours" in df.columns else "ours_value"
     if thesis_col not in df.columns or ours_col not in df.columns:
@@ -842,6 +894,7 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
                  else "estimate from the participant's printed forces (Table A.2, an input)")
         test, tv, ov, aux, stratum = "", math.nan, math.nan, (math.nan, math.nan), ds
         th_txt = _fmt(th)
+        kind = INDEPENDENT
         if q == "f_c":
             tol = max(0.5, tc.value * abs(th))
             within = abs(d) <= tol
@@ -876,6 +929,11 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
                 s_o = math.sqrt(o) / f_o if o >= 0 and f_o > 0 else math.nan
                 label += " (N^2)"
             within = abs(d) <= tol
+            lim = _at_clip_limit(th, o, clip) if q == "sigma_c" else None
+            if lim is not None:
+                kind = BY_CONSTRUCTION
+                basis += (f"; both runs at the sigma_c clip limit {lim:g} (chapter5.sigma_clip, Sec. 5.2.2.7): any "
+                          "run that reaches the limit matches, so the agreement is by construction")
             cls = lambda s: "-" if math.isnan(s) else ("identified" if s < tab.value else "uncertain")  # noqa: E731
             concl = f"same identification (relative spread < {tab.value:g}): thesis {cls(s_t)}, ours {cls(s_o)}"
             test, tv, ov, aux, stratum = "identification", s_t, s_o, (tab.value, math.nan), q
@@ -883,6 +941,10 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
             t, band = ctx.tols["D_fc_abs"], ctx.tols["D_fc_band"].value
             within = abs(d) <= t.value
             tol_txt = _tol_text(t, f"|d| <= {t.value:g}")
+            if ds in simulated and min(th, o) >= 1.0 - t.value:
+                kind = BY_CONSTRUCTION
+                basis += (f"; noise-free simulated data: the printed f_a fits them exactly (D = 1), and both runs sit "
+                          f"at that ceiling (D(f_c) >= {1.0 - t.value:g}), so the agreement is by construction")
             concl = (f"same fit: |d| <= {band:g} or both >= eps_D = {eps_d:g} (thesis {th:.2f}, ours {o:.2f})")
             test, tv, ov, aux, stratum = "D_fc_same_fit", th, o, (band, eps_d), ""
         elif q == "iters":
@@ -893,6 +955,11 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
                 # censored: '30+' is the statement 'did not converge within maxIter'
                 within = cens_t and cens_o and o >= th
                 tol_txt = _tol_text(t, "censored: matches only if both stopped at maxIter without converging")
+                if cens_t and cens_o:
+                    kind = BY_CONSTRUCTION
+                    basis += ("; both runs stopped at maxIter without converging, and our maxIter is copied from "
+                              "the thesis (chapter5.settings), so the counts agree by construction; the "
+                              "convergence itself is the conclusion column")
             else:
                 tol = max(1.0, t.value * abs(th))
                 within = abs(d) <= tol
@@ -910,8 +977,21 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
             concl = "no conclusion test defined for this quantity"
         ours_txt = o_txt if q == "iters" else _fmt(o, 4)
         rows.append(_row(chapter, source, label, th_txt, ours_txt, d, within, tol_txt, concl, reasons, ctx.rel,
-                         basis=basis, test=test, tv=tv, ov=ov, aux=aux, stratum=stratum))
+                         kind=kind, basis=basis, test=test, tv=tv, ov=ov, aux=aux, stratum=stratum))
     return rows
+
+
+# sigma_c clip limits of Sec. 5.2.2.7 (config chapter5.sigma_clip)
+SIGMA_CLIP = (0.01, 0.3)
+
+
+def _at_clip_limit(thesis: float, ours: float, clip: Sequence[float]) -> float | None:
+    """The clip limit both sigma_c values sit at (the printed one within half a unit of its 0.01 print, ours to
+    1e-6), or None."""
+    for lim in clip:
+        if abs(thesis - lim) <= 0.005 + 1e-12 and abs(ours - lim) <= 1e-6 * max(1.0, abs(lim)):
+            return float(lim)
+    return None
 
 
 CH5_TABLES = {"p2m7": "Table 5.1", "p3m12": "Table 5.2", "s3m24": "Table 5.3"}
@@ -935,7 +1015,17 @@ def _weakness_claim(ctx: Context, source: str, model: str) -> list[dict]:
     need = [(ds, "f_c", g), (ds, "sigma_c", g), (ds, "f_a", g)]
     if not all(k in cell for k in need):
         return []
-    base = _baseline(df, ctx, model, None).get(g, math.nan)
+    item = f"{ds}: weakness of {g} identified with high confidence"
+    csource = source.replace(" (", " caption (", 1)
+    concl = ("f_c closer to the weakened f_a than to the unweakened f_a ('norm') and sigma_c < "
+             f"{ctx.tols['identified_sigma'].value:g}")
+    try:
+        base = float(_baseline(df, ctx, model, None)[g])
+        if math.isnan(base):
+            raise ValueError(f"the unweakened f_a of {g} is not a number")
+    except Exception as e:  # noqa: BLE001 - any failure: the claim is not evaluated, with the error as its reason
+        return [_not_evaluated("Chapter 5", csource, item, concl, ctx.rel,
+                               _error_text(e) + " (building the unweakened baseline f_a)")]
     f_a = cell[(ds, "f_a", g)][0]
     thr = ctx.tols["identified_sigma"].value
 
@@ -945,8 +1035,7 @@ def _weakness_claim(ctx: Context, source: str, model: str) -> list[dict]:
 
     h_t, f_t, s_t = holds(0)
     h_o, f_o, s_o = holds(1)
-    return [_row("Chapter 5", source.replace(" (", " caption (", 1),
-                 f"{ds}: weakness of {g} identified with high confidence", "holds",
+    return [_row("Chapter 5", csource, item, "holds",
                  "holds" if h_o else "does not hold", math.nan, h_o,
                  _tol_text(ctx.tols["identified_sigma"], f"f_c closer to f_a = {f_a:g} N than to the unweakened "
                                                         f"f_a = {base:g} N ('norm') and sigma_c < {thr:g}"),
@@ -1032,7 +1121,8 @@ def _finalize(df: pd.DataFrame, tols: Mapping[str, Tolerance], seed: int) -> tup
     verdicts, notes, reasons, rates = [], [], [], []
     for r in df.to_dict("records"):
         if r["verdict"] == NOT_EVALUATED:
-            verdicts.append(NOT_EVALUATED), notes.append(r["conclusion"]), reasons.append(""), rates.append(math.nan)
+            verdicts.append(NOT_EVALUATED), notes.append(r["conclusion"]), reasons.append(r["reason"])
+            rates.append(math.nan)
             continue
         key = r["_test"]
         c = rate.get(key, math.nan) if key else math.nan
@@ -1043,7 +1133,8 @@ def _finalize(df: pd.DataFrame, tols: Mapping[str, Tolerance], seed: int) -> tup
         if key:
             note += (f" [chance rate {c:.2f}]" if usable else
                      f" [not a conclusion test here: chance rate {c:.2f} > {cmax:g}; the row can only match or differ]")
-        verdicts.append(v), notes.append(note), reasons.append(_reason(v, r["_codes"], r["_always"])), rates.append(c)
+        always = (("construction",) if r["kind"] == BY_CONSTRUCTION else ()) + tuple(r["_always"])
+        verdicts.append(v), notes.append(note), reasons.append(_reason(v, r["_codes"], always)), rates.append(c)
     df = df.assign(verdict=verdicts, conclusion=notes, reason=reasons, chance_rate=rates)
     return df, chance
 
@@ -1111,8 +1202,9 @@ SUMMARY_COLUMNS = ["chapter", "kind", "items", "matches", "same_conclusion", "di
 
 
 def summarize(scored: pd.DataFrame, skipped: pd.DataFrame | None = None) -> pd.DataFrame:
-    """Counts per chapter, kind (independent first) and verdict, items not evaluated in this configuration, and
-    totals per kind (chapter 'all'). Narrow on purpose (the report's front page shows it)."""
+    """Counts per chapter, kind (independent, calibrated, by construction) and verdict, items not evaluated (on the
+    chapter's independent row: claims this configuration cannot check and scorer errors), and totals per kind
+    (chapter 'all'). Narrow on purpose (the report's front page shows it)."""
     skipped = skipped if skipped is not None else pd.DataFrame(columns=COLUMNS)
     chapters = [c for c in CHAPTER_ORDER if c in set(scored["chapter"]) | set(skipped["chapter"])]
     chapters += sorted((set(scored["chapter"]) | set(skipped["chapter"])) - set(chapters))
@@ -1130,14 +1222,18 @@ def summarize(scored: pd.DataFrame, skipped: pd.DataFrame | None = None) -> pd.D
 
 
 def headline(summary: pd.DataFrame) -> str:
-    """One sentence: independent counts first, calibrated counts separately."""
+    """One sentence: independent counts first, calibrated and by-construction counts separately, then the items
+    not evaluated. A summary without a kind's rows (written before that kind existed) counts it as zero."""
     s = summary.set_index(["chapter", "kind"])
 
     def part(kind):
-        r = s.loc[("all", kind)]
+        r = s.loc[("all", kind)] if ("all", kind) in s.index else dict.fromkeys(SUMMARY_COLUMNS[2:], 0)
         return (f"{int(r['items'])} {kind} items: {int(r['matches'])} match, {int(r['same_conclusion'])} same "
                 f"conclusion, {int(r['differs'])} differ")
-    return part(INDEPENDENT) + "; " + part(CALIBRATED) + " (calibrated: agreement shows the calibration)"
+    n_ne = int(summary.loc[summary["chapter"] == "all", "not_evaluated"].sum())
+    return (part(INDEPENDENT) + "; " + part(CALIBRATED) + " (calibrated: agreement shows the calibration); "
+            + part(BY_CONSTRUCTION) + " (shown, never counted as reproduced); "
+            + f"{n_ne} not evaluated")
 
 
 def _source_family(source: str) -> str:
@@ -1152,7 +1248,8 @@ def header_lines(config: Mapping, tols: Mapping[str, Tolerance]) -> list[str]:
     return ["thesis scorecard: every number the thesis prints that we reproduce, ours beside it "
             "(neckstrength.report.scorecard; tolerances, conclusion tests and chance rates: scorecard_tolerances.csv)",
             f"kinds: {' / '.join(KINDS)} (calibrated = an input was fitted or drawn to the thesis numbers that "
-            f"determine this one); verdicts: {' / '.join(VERDICTS)}; difference = ours - thesis; seed "
+            f"determine this one; by construction = the agreement follows from the setup, shown but never counted "
+            f"as reproduced); verdicts: {' / '.join(VERDICTS)}; difference = ours - thesis; seed "
             f"{config.get('seed')}",
             f"model.unprinted_strengths: {m.get('unprinted_strengths', 'b3_implied')}; model.grouping_supplements: "
             f"{m.get('grouping_supplements', True)}",
