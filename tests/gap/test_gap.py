@@ -185,6 +185,10 @@ def test_exact_gradient_matches_finite_differences(effect, ctx_s3):
         + np.random.default_rng(2).normal(0, 0.3, (2, p))
     if inst.J > 1:
         sim.refresh(sim.muscles(phi))
+        # the exact window adds the directions of its maxima at these strengths, where the LP along them sits on a
+        # kink (the maximum over directions is where two faces of the producible set meet): the derivatives are
+        # compared a little away from the refresh point, on the same candidates
+        phi = phi + np.random.default_rng(3).normal(0, 0.02, phi.shape)
     f, g = sim.forces_grad_phi(phi)
     assert np.allclose(f, sim.forces_phi(phi), rtol=1e-10, atol=1e-9)
     h = 1e-6

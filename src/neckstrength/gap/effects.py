@@ -98,7 +98,9 @@ class Instance:
     ``elem`` (96 x m'): force of each full-model element per unit of column force (0 for non-muscles).
     ``lb``/``ub`` (K x m'): activation bounds per test direction. ``U6`` (K x J x 6) and ``fmul`` (K x J):
     J candidate unit wrenches per test and the force (N) per unit wrench magnitude along each; the
-    predicted force of test k is ``max_j w*(U6[k, j]) * fmul[k, j]``.
+    predicted force of test k is ``max_j w*(U6[k, j]) * fmul[k, j]``, or, with ``window`` (a
+    :class:`neckstrength.gap.window.WindowSet`), the maximum over each test's whole matching window (the
+    candidates are then where :class:`neckstrength.gap.fit.Simulator` starts its active sets).
     """
 
     R: np.ndarray
@@ -119,6 +121,7 @@ class Instance:
     fmul: np.ndarray
     planar: bool
     labels: tuple[str, ...] = ()
+    window: object | None = None
 
     @property
     def muscle_cols(self) -> np.ndarray:
@@ -371,18 +374,21 @@ class DirectionTolerance(Effect):
     within 20 degrees in the moment and force unit vectors and 10% in the force-moment ratio
     ``R_fm = |F| / (|M| + |F|)`` (Eq. A.2), and maximised the magnitude inside that window.
 
-    Model: the predicted force of a test is the largest force over candidate wrenches in a share ``s`` of
-    the window: the target, the moment direction tilted by ``s * 20`` degrees about two perpendicular axes
-    (+-), the force direction likewise, and ``R_fm`` scaled by ``1 +- s * 10%`` (11 candidates; planar
-    models: in-plane force tilt x ratio, 3 x 3 = 9 candidates). A finite inner approximation of the
-    window, so it can only underestimate the maximum over the whole window."""
+    Model: the predicted force of a test is the largest force ``|F|`` (N) over a share ``s`` of the window
+    (angle ``s * 20`` degrees, ratio ``rfm (1 -+ s * 10%)``). ``method: exact`` (the default) takes the maximum
+    over the whole window, certified within ``tol`` (relative) by branch and bound over LPs
+    (:mod:`neckstrength.gap.window`). ``method: points`` takes it over 11 candidate wrenches only: the target,
+    the moment direction tilted by ``s * 20`` degrees about two perpendicular axes (+-), the force direction
+    likewise, and ``R_fm`` scaled by ``1 +- s * 10%`` (planar models: in-plane force tilt x ratio, 3 x 3 = 9
+    candidates), an inner approximation that can only underestimate the maximum (kept for comparison; the
+    exact method starts from these candidates)."""
 
     name = "direction_tolerance"
     family = "tolerance"
     order = 90
     description = "measured maximum = largest force inside the Appendix A direction-matching window"
     source = "Appendix A (20 deg unit-vector error, 10% force-moment ratio error, Eq. A.2)"
-    defaults = {"angle_deg": 20.0, "ratio_rel": 0.10}
+    defaults = {"angle_deg": 20.0, "ratio_rel": 0.10, "method": "exact", "tol": 0.005}
 
     def params(self):
         return (Param("window_share", 0.0, 1.0, 0.0, "", "share of the Appendix A window used"),)
@@ -449,7 +455,15 @@ class DirectionTolerance(Effect):
             # scale so that the target candidate reproduces the instance's force per unit wrench exactly
             U.append(c)
             fm.append(f * inst.fmul[k, 0] / f[0])
-        return replace(inst, U6=np.array(U), fmul=np.array(fm))
+        method = str(self.s["method"])
+        if method not in ("exact", "points"):
+            raise ValueError(f"direction_tolerance method {method!r}: 'exact' or 'points'")
+        window = None
+        if method == "exact":
+            from neckstrength.gap.window import WindowSet
+            window = WindowSet.make(inst, self.ctx.model, float(self.s["angle_deg"]), float(self.s["ratio_rel"]),
+                                    float(theta[0]), float(self.s["tol"]))
+        return replace(inst, U6=np.array(U), fmul=np.array(fm), window=window)
 
 
 class Kinematic(Effect):

@@ -296,7 +296,7 @@ class _Engine:
             loss = np.where(better, lt[np.arange(A), b], loss)
             sse = np.where(better, st[np.arange(A), b], sse)
         if sim.inst.J > 1:
-            F = sim.run(sim.muscles(phi))[0]
+            F = sim.forces_all(sim.muscles(phi))
             loss, sse = _train_loss(F, T, W, phi, prior, ridge)
         res["phi"][fold_idx] = phi
         res["loss"][fold_idx] = loss

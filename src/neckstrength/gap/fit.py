@@ -21,7 +21,7 @@ Gauss-Newton model is exact inside each linear piece; the damping trials handle 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -84,6 +84,12 @@ class Simulator:
     *its* active candidates, so its fits do not depend on which other data sets are fitted with it. The LPs
     solved are those of the union of the sets (``active``); the other owners' candidates are solved but not
     used. Without ``owner`` the union is used (one data set, or callers that fit a fixed set of rows).
+
+    With a matching window (``inst.window``, :mod:`neckstrength.gap.window`) the forces of :meth:`forces`,
+    :meth:`forces_all` and the refreshes are the maxima over each test's whole window (certified within its
+    ``tol``); a refresh adds the direction of the window's maximum at each strength vector as a candidate
+    wherever the owner's active candidates fall short of it by more than ``tol``, so the fits' forces (on the
+    active candidates) are inner approximations that are exact to ``tol`` at the refresh points.
     """
 
     def __init__(self, ctx: GapContext, inst: Instance, cache=None, chunk_size: int = 65536):
@@ -97,7 +103,12 @@ class Simulator:
         self.fmul = inst.fmul
         self.active = np.zeros((self.K, J), bool)
         self.active[:, 0] = True
+        self.alive = np.ones((self.K, J), bool)      # candidates that exist (the rest pad a test's row)
         self.row_active: np.ndarray | None = None     # (owners, K, J) active sets per owner (data set)
+        self.window = getattr(inst, "window", None)
+        self._J0 = J
+        self._exact: tuple | None = None
+        self._memo: dict[bytes, tuple] = {}
         self.n_lp = 0
         self.pidx, self.pnames = free_parameters(ctx.model, ctx.tie_sides)
 
@@ -119,7 +130,7 @@ class Simulator:
         F = np.atleast_2d(np.asarray(F, float))
         Fa = self.inst.strengths(F)
         N, K, J = len(F), self.K, self.inst.J
-        use = self.active if (active_only and J > 1) else np.ones((K, J), bool)
+        use = self.active if (active_only and J > 1) else self.alive
         sel = use.ravel()
         w_s, alpha_s, status_s = solve(self.model, Fa, self.U[sel], self.lb[sel], self.ub[sel],
                                                   return_alpha=return_alpha, chunk_size=self.chunk,
@@ -133,6 +144,7 @@ class Simulator:
         forces = np.where(w >= 0, w * self.fmul[None], -1.0)
         if active_only and J > 1:
             forces = self._own(forces, owner)
+        self._cand_forces = forces
         j = forces.argmax(axis=2)
         f = np.maximum(np.take_along_axis(forces, j[..., None], 2)[..., 0], 0.0)
         st = np.take_along_axis(status.reshape(N, K, J), j[..., None], 2)[..., 0]
@@ -144,13 +156,114 @@ class Simulator:
             a = np.take_along_axis(a, j[..., None, None], 2)[:, :, 0]
         return f, st, j, a
 
+    def exact(self, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Window maxima (N x K) and their task-space wrenches (N x K x d) at strengths ``F`` (the last ones
+        kept)."""
+        F = np.atleast_2d(np.asarray(F, float))
+        last = self._exact
+        if last is not None and last[0].shape == F.shape and np.array_equal(last[0], F):
+            return last[1], last[2]
+        # each distinct strength vector once, and those solved before (up to 20000 kept) not again
+        memo = self._memo
+        keys = [r.tobytes() for r in F]
+        todo = sorted({kk: i for i, kk in enumerate(keys) if kk not in memo}.values())
+        if todo:
+            f_new, _, W_new = self.window.solve(self.model.moment_arms, self.model.JT, self.inst.strengths(F[todo]),
+                                                self.inst.lb, self.inst.ub)
+            if len(memo) + len(todo) > 20000:
+                memo.clear()
+            for a, i in enumerate(todo):
+                memo[keys[i]] = (f_new[a], W_new[a])
+        f = np.array([memo[kk][0] for kk in keys])
+        W = np.array([memo[kk][1] for kk in keys])
+        self._exact = (F.copy(), f, W)
+        return f, W
+
+    def _grow(self, new: dict[int, list[tuple[np.ndarray, float]]]) -> dict[int, list[int]]:
+        """Add candidates ``new`` (test -> [(6-D unit wrench, force per unit wrench)]); their slots per test."""
+        inst = self.inst
+        K, J = self.K, inst.J
+        free = {k: np.flatnonzero(~self.alive[k]) for k in new}
+        extra = max([max(0, len(v) - len(free[k])) for k, v in new.items()] + [0])
+        if extra:
+            U6 = np.concatenate([inst.U6, np.repeat(inst.U6[:, :1], extra, axis=1)], axis=1)
+            fmul = np.concatenate([inst.fmul, np.repeat(inst.fmul[:, :1], extra, axis=1)], axis=1)
+            pad = lambda a: np.concatenate([a, np.zeros(a.shape[:-1] + (extra,), bool)], axis=-1)  # noqa: E731
+            self.alive, self.active = pad(self.alive), pad(self.active)
+            if self.row_active is not None:
+                self.row_active = pad(self.row_active)
+            free = {k: np.r_[free[k], np.arange(J, J + extra)] for k in new}
+        else:
+            U6, fmul = inst.U6.copy(), inst.fmul.copy()
+        slots = {}
+        for k, items in new.items():
+            slots[k] = []
+            for (u6, fm), j in zip(items, free[k]):
+                U6[k, j], fmul[k, j] = u6, fm
+                self.alive[k, j] = True
+                slots[k].append(int(j))
+        self.inst = replace(inst, U6=U6, fmul=fmul)
+        self.U = self.inst.task_directions(self.ctx.model)
+        self.lb = np.repeat(inst.lb, self.inst.J, axis=0)
+        self.ub = np.repeat(inst.ub, self.inst.J, axis=0)
+        self.fmul = fmul
+        return slots
+
+    def _window_refresh(self, F: np.ndarray, owner: np.ndarray | None) -> np.ndarray:
+        """Per row of ``F``: a candidate that reaches the window maximum within ``tol`` (one of the starting
+        candidates or of the owner's set; else the window maximum's direction, added) joins its owner's active set
+        (the union's without owners). Returns per row whether the set grew."""
+        F = np.atleast_2d(np.asarray(F, float))
+        N, K = len(F), self.K
+        ex, W = self.exact(F)
+        self.run(F)
+        forces = self._cand_forces
+        tol = self.window.tol
+        sets = self.active[None].repeat(N, 0) if owner is None else self.row_active[owner]
+        before = sets.sum(axis=(1, 2))
+        need: dict[int, list] = {}
+        where: dict[int, list] = {}
+        for i in range(N):
+            for k in range(K):
+                if ex[i, k] <= 0:
+                    continue
+                # an owner reuses only the starting candidates and its own, so that its set (and its fits) do not
+                # depend on the other owners in the batch
+                mine = self.alive[k] if owner is None else (sets[i, k] | (np.arange(self.inst.J) < self._J0))
+                good = np.flatnonzero(mine & (forces[i, k] >= ex[i, k] * (1 - tol)))
+                if good.size:
+                    sets[i, k, good[np.argmax(forces[i, k, good])]] = True
+                else:
+                    need.setdefault(k, []).append(self.window.candidate(k, W[i, k]))
+                    where.setdefault(k, []).append(i)
+        if need:
+            slots = self._grow(need)
+            J = self.inst.J
+            if sets.shape[2] < J:
+                sets = np.concatenate([sets, np.zeros((N, K, J - sets.shape[2]), bool)], axis=2)
+            for k, rows in where.items():
+                for i, j in zip(rows, slots[k]):
+                    sets[i, k, j] = True
+        if owner is None:
+            self.active |= sets.any(axis=0)
+        else:
+            for i, o in enumerate(owner):
+                self.row_active[o] |= sets[i]
+            self.active |= self.row_active.any(axis=0)
+        after = sets.sum(axis=(1, 2)) if owner is None else self.row_active[owner].sum(axis=(1, 2))
+        self._last_all = (F.copy(), ex)
+        return after > before
+
     def refresh(self, F: np.ndarray) -> bool:
         """Evaluate all candidates at ``F``; add the maximising ones to the active set. True if it grew.
 
         The forces over all candidates at ``F`` are kept (:meth:`forces_all`), so that a caller who wants
-        them at the same point does not solve the same LPs again."""
+        them at the same point does not solve the same LPs again. With a window: the window maxima (see the
+        class docstring)."""
         if self.inst.J == 1:
             return False
+        if self.window is not None:
+            return bool(self._window_refresh(F, None).any())
         f, _, j, _ = self.run(F)
         self._last_all = (np.array(F, float, copy=True), f)
         before = self.active.sum()
@@ -165,8 +278,6 @@ class Simulator:
         owner = np.asarray(owner, dtype=np.int64)
         if self.inst.J == 1:
             return np.zeros(len(owner), bool)
-        f, _, j, _ = self.run(F)
-        self._last_all = (np.array(F, float, copy=True), f)
         n = int(owner.max()) + 1 if owner.size else 0
         old = self.row_active
         if old is None or old.shape[0] < n:
@@ -175,21 +286,29 @@ class Simulator:
             if old is not None:
                 ra[:old.shape[0]] = old
             self.row_active = ra
+        if self.window is not None:
+            return self._window_refresh(F, owner)
+        f, _, j, _ = self.run(F)
+        self._last_all = (np.array(F, float, copy=True), f)
         before = self.row_active[owner].sum(axis=(1, 2))
         self.row_active[owner[:, None], np.arange(self.K)[None, :], j] = True
         self.active |= self.row_active.any(axis=0)
         return self.row_active[owner].sum(axis=(1, 2)) > before
 
     def forces(self, F: np.ndarray) -> np.ndarray:
+        """Predicted forces: over all candidates, or with a window its maxima."""
+        if self.window is not None:
+            return self.exact(F)[0]
         return self.run(F)[0]
 
     def forces_all(self, F: np.ndarray) -> np.ndarray:
-        """:meth:`forces` over all candidates; those of the last :meth:`refresh` if it was at ``F``."""
+        """:meth:`forces` over all candidates (with a window: its maxima); those of the last :meth:`refresh` if it
+        was at ``F``."""
         last = getattr(self, "_last_all", None)
         F = np.atleast_2d(np.asarray(F, float))
         if last is not None and last[0].shape == F.shape and np.array_equal(last[0], F):
             return last[1]
-        return self.run(F)[0]
+        return self.forces(F)
 
     def muscles(self, phi: np.ndarray) -> np.ndarray:
         """Model-muscle strengths for log free strengths ``phi`` (N x p)."""
