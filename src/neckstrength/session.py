@@ -861,7 +861,7 @@ class Session:
         if not self.state.tested:
             return False, f"continue: no measurement yet ({crit})"
         dec = getattr(self, "decision", None)
-        if dec is not None and dec.decision() != "undecided":
+        if dec is not None and dec.decision() in ("deficit", "no deficit"):
             return True, (f"STOP recommended: the deficit question is decided ({dec.decision()}, P(deficit) "
                           f"{dec.p_deficit():.2f}); further tests would only refine the strength estimates")
         if ratio < self.gain_frac:
@@ -959,7 +959,8 @@ class Session:
         h = dec.history[-1]
         tr = [x["p_deficit"] for x in dec.history]
         arrows = ("... -> " if len(tr) > 8 else "") + " -> ".join(f"{x:.2f}" for x in tr[-8:])
-        word = {"deficit": "DEFICIT", "no deficit": "NO DEFICIT", "undecided": "UNDECIDED"}[h["decision"]]
+        word = {"deficit": "DEFICIT", "no deficit": "NO DEFICIT", "undecided": "UNDECIDED",
+                "model misfit": "NOT DECIDABLE (the model does not fit these forces)"}[h["decision"]]
         lo, hi = s.deficit_range
         bf = h["log_bf"]
         bft = f"{np.exp(bf):.3g}" if abs(bf) < 50 else ("> 1e21" if bf > 0 else "< 1e-21")
@@ -970,9 +971,15 @@ class Session:
             f"heuristic); prior prevalence {s.prevalence:.0%} (clinician.decision.prevalence)",
             f"  depends on: deficit = each side at {lo:.0%}-{hi:.0%} of normal (uniform), normal = at least "
             f"{hi:.0%}; every muscle varies with sd {s.population_sd:.0%}; noise {s.noise:.0%} ({s.noise_source}); "
-            f"{s.n_candidates} candidates per hypothesis",
-            "  how well it decides: measured on simulated patients of this model (docs/clinician.md, decision "
-            "study: ROC, sensitivity at a 5% false-alarm rate, reliability); not checked under model misfit"]
+            f"{s.n_candidates} candidates per hypothesis"
+            + (f"; best fit {h['misfit_rms']:.0%} RMS" if np.isfinite(h["misfit_rms"]) else ""),
+        ] + ([f"  WARNING: no strength vector of the model fits these forces better than {h['misfit_rms']:.0%} RMS, "
+              f"more than {s.misfit_factor:g} x the {s.noise:.0%} noise: the Bayes factor then says which hypothesis "
+              f"misfits less, not whether the muscle is weak (docs/clinician.md; the gap diagnosis says where the "
+              f"model misses)"] if h["decision"] == "model misfit" else []) + [
+            "  P(deficit) is NOT calibrated (heuristic): on simulated patients of this model it was conservative "
+            "between 0.2 and 0.6 and the rule's sensitivity and false alarms are measured there (docs/clinician.md, "
+            "decision study); not checked under model misfit, which real participants have"]
 
     def deficit_lines(self) -> list[str]:
         if getattr(self, "decision", None) is not None:

@@ -234,3 +234,23 @@ def test_two_threads_give_the_same_numbers(p2m7):
     # the same to the solver's rounding (another basis cache can return another optimal vertex's last bits)
     assert out[0][0] == pytest.approx(out[1][0], rel=1e-9, abs=1e-9)
     assert np.allclose(out[0][1], out[1][1], rtol=1e-9, atol=0)
+
+
+def test_forces_the_model_cannot_fit_are_not_decided(p2m7):
+    """Forces no strength vector reproduces (alternately x 0.5 and x 2 of a fitted truth's): 'model misfit', not a
+    confident deficit or no-deficit from whichever hypothesis misfits less; the same forces unscaled are decided
+    or undecided as usual."""
+    model, data = p2m7
+    s = DecisionSettings(group=("TS-E",), n_candidates=300, n_moves=2, min_tests=1)
+    w, _, _ = solve(model, model.strengths[None], data.U)
+    good = w[0] / data.force_scale
+    bad = good * np.where(np.arange(len(good)) % 2 == 0, 0.5, 2.0)
+    out = {}
+    for name, forces in (("good", good), ("bad", bad)):
+        dec = DeficitDecision(model, data.directions, data.U, data.force_scale, model.strengths, s, JointSettings(),
+                              np.random.default_rng(9))
+        for d, f in zip(data.directions, forces):
+            dec.push(d, float(f))
+        out[name] = (dec.decision(), dec.misfit_rms())
+    assert out["bad"][0] == "model misfit" and out["bad"][1] > 3 * s.noise
+    assert out["good"][0] != "model misfit" and out["good"][1] < 3 * s.noise

@@ -45,7 +45,7 @@ from scipy.special import log_ndtr, ndtr, ndtri
 from neckstrength.model.reduction import ReducedModel
 from neckstrength.sequential.joint import JointPosterior, JointSettings
 
-DECISIONS = ("deficit", "no deficit", "undecided")
+DECISIONS = ("deficit", "no deficit", "undecided", "model misfit")
 
 
 @dataclass(frozen=True)
@@ -56,10 +56,11 @@ class DecisionSettings:
     deficit_range: tuple[float, float] = (0.2, 0.6)   # H_D: each side U(lo, hi) x normal
     population_sd: float = 0.3                  # population variation of every muscle (sd / normal; Chapter 6's prior)
     noise: float = 0.05                         # measurement noise: sd of the relative force error
-    noise_source: str = "stated default"        # where ``noise`` comes from (printed with the answer)
+    noise_source: str = "stated default, test-retest literature"   # where ``noise`` comes from (printed)
     prevalence: float = 0.5                     # prior P(deficit) the clinician sets
     p_decide: float = 0.95                      # decide when P >= p_decide (deficit) or P <= 1 - p_decide (none)
     min_tests: int = 5                          # ... but not before this many tests
+    misfit_factor: float = 3.0                  # "model misfit" when no candidate fits within this x noise (RMS)
     n_candidates: int = 1000                    # per hypothesis
     # each hypothesis's sampler (benchmarks/bench_decision.py: log BF of 'weak' over seeds against these)
     resample_ess: float = 0.3                   # resample-move when the ESS falls below this share
@@ -82,6 +83,8 @@ class DecisionSettings:
             raise ValueError(f"clinician.decision.sampler: resample_move or fresh_draws, not {self.sampler!r}")
         if not 0 < self.resample_ess <= 1 or self.n_moves < 1 or self.max_resamples < 1:
             raise ValueError("clinician.decision: resample_ess in (0, 1], n_moves >= 1, max_resamples >= 1")
+        if self.misfit_factor <= 0:
+            raise ValueError(f"clinician.decision.misfit_factor must be positive, got {self.misfit_factor}")
         if self.min_tests < 1:
             raise ValueError(f"clinician.decision.min_tests must be >= 1, got {self.min_tests}")
         if self.n_candidates < 100:
@@ -267,9 +270,27 @@ class DeficitDecision:
         p = self.p_deficit()
         return float(p * (1 - p) * self.log_bf_se())
 
+    def misfit_rms(self) -> float:
+        """The best candidate's RMS relative force error over the tests so far, under either hypothesis: how well
+        the model can fit these forces at all (NaN before any test)."""
+        best = np.inf
+        for p in self.posts.values():
+            if not p.tests:
+                return float("nan")
+            cols = np.array([t["i"] for t in p.tests])
+            wm = np.array([t["w_meas"] for t in p.tests])
+            rel = (p.W[:, cols] - wm) / wm
+            best = min(best, float(np.sqrt((rel ** 2).mean(axis=1)).min()))
+        return best
+
     def decision(self) -> str:
+        """'deficit' / 'no deficit' at the thresholds, 'undecided' between them or before ``min_tests`` tests,
+        'model misfit' when no candidate of either hypothesis fits the forces within ``misfit_factor`` x the noise
+        (RMS): then the Bayes factor says which hypothesis misfits less, not whether the muscle is weak."""
         if len(self.tested) < self.settings.min_tests:
             return "undecided"
+        if self.misfit_rms() > self.settings.misfit_factor * self.settings.noise:
+            return "model misfit"
         p = self.p_deficit()
         if p >= self.settings.p_decide:
             return "deficit"
@@ -280,7 +301,7 @@ class DeficitDecision:
     def summary(self) -> dict:
         return {"t": len(self.tested), "direction": self.tested[-1] if self.tested else "",
                 "log_bf": self.log_bf(), "log_bf_se": self.log_bf_se(), "p_deficit": self.p_deficit(),
-                "p_deficit_se": self.p_deficit_se(), "decision": self.decision(),
+                "p_deficit_se": self.p_deficit_se(), "decision": self.decision(), "misfit_rms": self.misfit_rms(),
                 "ess_normal": self.posts["normal"].ess_share(), "ess_deficit": self.posts["deficit"].ess_share(),
                 "ratio_mean_deficit": self.group_ratio_mean("deficit"),
                 "ratio_mean_normal": self.group_ratio_mean("normal")}
