@@ -257,7 +257,6 @@ class WindowSolver:
         self.h = highspy.Highs()
         self.h.setOptionValue("output_flag", False)
         self.h.setOptionValue("log_to_console", False)
-        self.h.setOptionValue("presolve", "off")        # small LPs, warm-started from the previous node's basis
         lp = highspy.HighsLp()
         nc = self.m + self.d
         lp.num_col_ = nc
@@ -311,7 +310,14 @@ class WindowSolver:
         h.changeColsCost(self.d, self.wcols, np.asarray(cost, float))
         h.run()
         self.n_lp += 1
-        if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+        st = h.getModelStatus()
+        if st not in (highspy.HighsModelStatus.kOptimal, highspy.HighsModelStatus.kInfeasible):
+            # a warm start that HiGHS could not use (status 'Not Set' seen after rows were exchanged): from scratch
+            h.clearSolver()
+            h.run()
+            self.n_lp += 1
+            st = h.getModelStatus()
+        if st != highspy.HighsModelStatus.kOptimal:
             return None
         return np.asarray(h.getSolution().col_value)[self.m:]
 
@@ -506,17 +512,12 @@ class WindowSet:
                 f[i, k], up[i, k], W[i, k] = r.force, r.upper, r.wrench
         return f, up, W
 
-    def candidate(self, k: int, w: np.ndarray, nudge: float = 0.0) -> tuple[np.ndarray, float]:
+    def candidate(self, k: int, w: np.ndarray) -> tuple[np.ndarray, float]:
         """The 6-D unit wrench (planar: the task components in their places) along task-space wrench ``w`` of
         test ``k`` and its force per unit wrench magnitude (N)."""
         from neckstrength.model.geometry import PLANAR_INDEX
         spec = self.specs[k]
         v = w / np.linalg.norm(w)
-        if nudge > 0:
-            # a little towards the target, inside the window: the LP along the maximum's own direction sits on a kink
-            # (faces of the producible set meet there), where its derivative depends on the optimal vertex returned
-            v = v + nudge * (spec.u - v)
-            v = v / np.linalg.norm(v)
         fmul = spec.c * float(np.linalg.norm(v[spec.dm:]))
         if self.planar:
             u6 = np.zeros(6)
