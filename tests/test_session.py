@@ -199,6 +199,12 @@ def test_errors_on_reuse_missing_and_bad_csv(tmp_path, cache):
     p.close()
     assert p.exitstatus == 2 and "row 3" in p.before and "wrong unit 'kN'" in p.before
     assert not (out / "session.log.jsonl").exists()                 # the whole CSV is checked before logging
+    assert not out.exists()                                           # a failed replay removes what it created
+    bad.with_name("good.csv").write_text("direction,force_N\nforehead,150\n")
+    p = spawn(["replay", "--csv", str(bad.with_name("good.csv")), *start_args(out, cache)[1:]])
+    p.expect(pexpect.EOF)
+    p.close()
+    assert p.exitstatus == 0, p.before
     p = spawn(start_args(out, cache))
     p.expect(pexpect.EOF)
     p.close()
@@ -207,3 +213,31 @@ def test_errors_on_reuse_missing_and_bad_csv(tmp_path, cache):
     p.expect(pexpect.EOF)
     p.close()
     assert p.exitstatus == 2 and "no session.json" in p.before
+
+
+def test_failed_replay_removes_only_what_it_created_and_the_corrected_replay_works(tmp_path, cache):
+    out = tmp_path / "r"
+    out.mkdir()
+    (out / "notes.txt").write_text("the clinician's notes\n")        # existed before: never touched
+    bad = tmp_path / "bad.csv"
+    bad.write_text("direction,force_N\nforehead,150\nback,abc\n")
+    p = spawn(["replay", "--csv", str(bad), *start_args(out, cache)[1:]])
+    p.expect(pexpect.EOF)
+    p.close()
+    assert p.exitstatus == 2 and "row 3" in p.before
+    assert sorted(x.name for x in out.iterdir()) == ["notes.txt"]     # no session.json, log or lock left
+    assert (out / "notes.txt").read_text() == "the clinician's notes\n"
+    bad.write_text("direction,force_N\nforehead,150\nback,120\n")    # corrected
+    p = spawn(["replay", "--csv", str(bad), *start_args(out, cache)[1:]])
+    p.expect(pexpect.EOF)
+    p.close()
+    assert p.exitstatus == 0, p.before
+    assert [r["action"] for r in records(out)] == ["measure", "measure", "stop"]
+    assert (out / "summary.csv").exists() and (out / "notes.txt").exists()
+    # a replay into a folder that holds a session is refused and removes nothing
+    kept = sorted(x.name for x in out.iterdir())
+    p = spawn(["replay", "--csv", str(bad), *start_args(out, cache)[1:]])
+    p.expect(pexpect.EOF)
+    p.close()
+    assert p.exitstatus == 2 and "already holds a session" in p.before
+    assert sorted(x.name for x in out.iterdir()) == kept

@@ -340,7 +340,7 @@ def _cmd_derive(args) -> int:
 
 
 def _cmd_session(args) -> int:
-    from neckstrength.session import InputError, Session, SessionOptions, parse_priorities, replay_csv, run_interactive
+    from neckstrength.session import InputError, Session, SessionOptions, parse_priorities, replay_into, run_interactive
 
     try:
         if args.action == "resume":
@@ -352,8 +352,9 @@ def _cmd_session(args) -> int:
                               gain_frac=args.stop_frac, cache=args.cache, seed=args.seed, criterion=args.criterion,
                               postures=args.postures, posture_change_cost=args.posture_change_cost,
                               prevalence=args.prevalence, noise=args.noise, noise_source=args.noise_source)
-        s = Session.start(args.out, opts, threads=args.threads)
-        return run_interactive(s) if args.action == "start" else replay_csv(s, args.csv)
+        if args.action == "replay":          # a failed replay removes what it created (session.json, log, lock)
+            return replay_into(args.out, opts, args.csv, threads=args.threads)
+        return run_interactive(Session.start(args.out, opts, threads=args.threads))
     except (InputError, ValueError, FileExistsError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -1213,6 +1213,52 @@ def replay_csv(session: Session, csv: str | Path, out=sys.stdout) -> int:
     return 0
 
 
+def replay_into(out: str | Path, opts: SessionOptions, csv: str | Path, threads: int | None = None,
+                progress=print, stdout=sys.stdout) -> int:
+    """``session replay``: start a session in ``out`` and drive it from ``csv`` (:func:`replay_csv`). A replay
+    that fails (a bad CSV row, an error while computing, an interrupt) removes what it created in this run: the
+    header, the log, the lock file, outputs, and ``out`` itself (and the parent folders it created) when it did not
+    exist before; nothing that existed before is touched. The corrected replay into the same ``out`` then works."""
+    out = Path(out)
+    root = None                                 # the topmost folder this run creates (None: ``out`` existed)
+    for p in [out, *out.parents]:
+        if p.exists() or p.is_symlink():
+            break
+        root = p
+    before = set(os.listdir(out)) if root is None and out.is_dir() else set()
+    try:
+        s = Session.start(out, opts, progress, threads)
+        return replay_csv(s, csv, stdout)
+    except BaseException:
+        if out.is_dir():
+            _discard_created(out, before, root)
+        raise
+
+
+def _discard_created(out: Path, before: set, root: Path | None) -> None:
+    """Remove the entries of ``out`` that are not in ``before`` (and the folders from ``out`` up to ``root`` when
+    this run created them and they are empty then); release this process's lock on ``out`` first."""
+    import shutil
+
+    fh = _LOCKS.pop(str(out.resolve()), None)
+    if fh is not None:
+        fh.close()
+    for name in set(os.listdir(out)) - before:
+        p = out / name
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
+    if root is not None:
+        for p in [out, *out.parents]:
+            try:
+                p.rmdir()                       # only when empty: never anything another process put there
+            except OSError:
+                break
+            if p == root:
+                break
+
+
 def _proposed_text(session: Session, label: str | None) -> str:
     if label is None or not session.postures:
         return str(label)
