@@ -31,6 +31,28 @@ import numpy as np
 import pandas as pd
 
 
+#: Largest table file the readers accept (bytes; 50 MB). A bigger measurement, activation or trial table is not a
+#: lab's table (25 directions x a few hundred participants, a few thousand trials are a few MB); it is refused
+#: before it is read. EMG signal files (one row per sample) have their own limit, :data:`MAX_SIGNALS_BYTES`.
+MAX_TABLE_BYTES = 50_000_000
+
+#: Largest EMG signals file (bytes; 2 GB): a long-format file with one row per sample.
+MAX_SIGNALS_BYTES = 2_000_000_000
+
+#: Most columns a table may have (10,000): a table with more participant columns is refused at its header,
+#: before its rows are read, and the column names are not listed.
+MAX_TABLE_COLUMNS = 10_000
+
+#: Characters of a cell or a column name an error message echoes; a longer one is cut and ends in "...".
+EXCERPT_CHARS = 80
+
+
+def excerpt(value: object, n: int = EXCERPT_CHARS) -> str:
+    """``value`` as text, cut to ``n`` characters plus "..." when longer (for error messages)."""
+    text = str(value)
+    return text if len(text) <= n else text[:n] + "..."
+
+
 class DataValidationError(ValueError):
     """A data file failed validation; the message names file, row and field."""
 
@@ -47,7 +69,7 @@ class DataValidationError(ValueError):
         elif line is not None:
             where.append(f"line {line}")
         if field_name is not None:
-            where.append(f"field '{field_name}'")
+            where.append(f"field '{excerpt(field_name)}'")
         super().__init__(", ".join(where) + ": " + problem)
 
 
@@ -123,6 +145,57 @@ def declared_units(comments: Iterable[str]) -> dict[str, str]:
     return units
 
 
+def _header_fields(path: Path, n_comment: int) -> tuple[str, list[str], int]:
+    """The header line after the comments (its text, its fields, its line number); blank lines are skipped.
+    Reads only up to the header."""
+    line_no = n_comment
+    with open(path, encoding="utf-8-sig", newline="") as fh:
+        for _ in range(n_comment):
+            fh.readline()
+        for text in fh:
+            line_no += 1
+            text = text.rstrip("\r\n")
+            if text.strip():
+                try:
+                    fields = next(csv.reader([text]))
+                except csv.Error:
+                    fields = text.split(",")
+                return text, fields, line_no
+    return "", [], line_no
+
+
+def check_header(path: str | Path, n_comment: int = 0) -> None:
+    """Raise :class:`DataValidationError` for a header that cannot be a comma-separated table of a sane size:
+    more than :data:`MAX_TABLE_COLUMNS` columns (refused before any row is read), a semicolon-separated file
+    (a spreadsheet export with decimal commas), or a column name given twice (named with both positions)."""
+    path = Path(path)
+    text, fields, line = _header_fields(path, n_comment)
+    if len(fields) > MAX_TABLE_COLUMNS:
+        raise DataValidationError(path, f"{len(fields):,} columns, more than the limit of {MAX_TABLE_COLUMNS:,} "
+                                  "(neckstrength.io.MAX_TABLE_COLUMNS); is this the right file?", line=line)
+    if ";" in text and ("," not in text or len(fields) == 1):
+        raise DataValidationError(path, "looks semicolon-separated (decimal commas?): save as comma-separated "
+                                  "with '.' as the decimal mark", line=line)
+    seen: dict[str, int] = {}
+    for k, name in enumerate(fields, start=1):
+        name = name.strip()
+        if name in seen:
+            raise DataValidationError(path, f"duplicate column '{excerpt(name)}' (columns {seen[name]} and {k})",
+                                      line=line, field_name=name)
+        seen[name] = k
+
+
+def check_size(path: str | Path, max_bytes: int | None = None) -> None:
+    """Raise :class:`DataValidationError` for a file larger than ``max_bytes`` (default
+    :data:`MAX_TABLE_BYTES`), before it is read."""
+    path = Path(path)
+    limit = MAX_TABLE_BYTES if max_bytes is None else max_bytes
+    size = path.stat().st_size
+    if size > limit:
+        raise DataValidationError(path, f"{size} bytes ({size / 1e6:.1f} MB), larger than the limit of {limit} "
+                                  f"bytes ({limit / 1e6:g} MB) for this kind of table; is this the right file?")
+
+
 def check_field_counts(path: str | Path, n_comment: int = 0) -> None:
     """Raise :class:`DataValidationError` for a row with more or fewer fields than the header (a truncated or
     shifted row would otherwise import with blank or misplaced values), naming row, line and both counts. A last
@@ -133,7 +206,14 @@ def check_field_counts(path: str | Path, n_comment: int = 0) -> None:
     reader = csv.reader(io.StringIO(body, newline=""))
     header = None
     row = 0
-    for rec in reader:
+    while True:
+        try:
+            rec = next(reader)
+        except StopIteration:
+            break
+        except csv.Error as exc:                      # e.g. a cell longer than the csv module's field limit
+            raise DataValidationError(path, f"cannot parse CSV ({excerpt(exc, 200)})",
+                                      line=n_comment + reader.line_num) from None
         line = n_comment + reader.line_num
         if header is None:
             header = rec
@@ -167,24 +247,30 @@ def check_text_file(path: str | Path) -> None:
                                   "save the file as UTF-8 CSV", line=data.count(b"\n", 0, exc.start) + 1) from None
 
 
-def read_table(path: str | Path, schema: Schema) -> pd.DataFrame:
+def read_table(path: str | Path, schema: Schema, max_bytes: int | None = None) -> pd.DataFrame:
     """Read a CSV and validate it against ``schema``.
 
     Returns a DataFrame with typed columns. Raises :class:`DataValidationError`
-    for a missing file, a missing column, a wrong declared unit, a non-numeric
-    or out-of-range value, a missing required value or a duplicate key.
+    for a missing file, a file larger than ``max_bytes`` (default :data:`MAX_TABLE_BYTES`), more than
+    :data:`MAX_TABLE_COLUMNS` columns, a semicolon-separated file, a duplicated or missing column, a wrong
+    declared unit, a non-numeric or out-of-range value, a missing required value or a duplicate key. Messages
+    echo at most :data:`EXCERPT_CHARS` characters of a cell.
     """
     path = Path(path)
     if not path.exists():
         raise DataValidationError(path, "file not found")
+    if path.is_dir():
+        raise DataValidationError(path, "is a folder, not a CSV file")
+    check_size(path, max_bytes)
     check_text_file(path)
     comments, n_comment = _read_comments(path)
+    check_header(path, n_comment)
     check_field_counts(path, n_comment)
     try:
         raw = pd.read_csv(path, comment=None, skiprows=n_comment, dtype=str,
                           keep_default_na=False, skip_blank_lines=True)
     except Exception as exc:  # pandas parser errors carry a line number in text
-        raise DataValidationError(path, f"cannot parse CSV ({exc})") from exc
+        raise DataValidationError(path, f"cannot parse CSV ({excerpt(exc, 200)})") from exc
     raw.columns = [str(c).strip() for c in raw.columns]
     header_line = n_comment + 1
 
@@ -192,7 +278,7 @@ def read_table(path: str | Path, schema: Schema) -> pd.DataFrame:
         if col.required and col.name not in raw.columns:
             raise DataValidationError(path, f"missing column (expected columns: "
                                       f"{', '.join(c.name for c in schema.columns if c.required)}; "
-                                      f"found: {', '.join(raw.columns)})",
+                                      f"found: {_column_list(raw.columns)})",
                                       line=header_line, field_name=col.name)
     if len(set(raw.columns)) != len(raw.columns):
         dup = [c for c in raw.columns if list(raw.columns).count(c) > 1][0]
@@ -232,28 +318,30 @@ def read_table(path: str | Path, schema: Schema) -> pd.DataFrame:
                 try:
                     x = float(v)
                 except ValueError:
-                    raise DataValidationError(path, f"'{v}' is not a number", row, line, cname) from None
+                    raise DataValidationError(path, f"'{excerpt(v)}' is not a number", row, line, cname) from None
                 if not math.isfinite(x):
-                    raise DataValidationError(path, f"'{v}' is not a finite number", row, line, cname)
+                    raise DataValidationError(path, f"'{excerpt(v)}' is not a finite number", row, line, cname)
                 if col.kind == "int" and x != int(x):
-                    raise DataValidationError(path, f"'{v}' is not an integer", row, line, cname)
+                    raise DataValidationError(path, f"'{excerpt(v)}' is not an integer", row, line, cname)
                 unit = f" {col.unit}" if col.unit and col.unit != "1" else ""
                 if col.min is not None and (x < col.min or (col.min_exclusive and x == col.min)):
                     op = ">" if col.min_exclusive else ">="
-                    raise DataValidationError(path, f"value {v}{unit} out of range (must be {op} {col.min}{unit})",
+                    raise DataValidationError(path, f"value {excerpt(v)}{unit} out of range "
+                                              f"(must be {op} {col.min}{unit})",
                                               row, line, cname)
                 if col.max is not None and x > col.max:
-                    raise DataValidationError(path, f"value {v}{unit} out of range (must be <= {col.max}{unit})",
+                    raise DataValidationError(path, f"value {excerpt(v)}{unit} out of range "
+                                              f"(must be <= {col.max}{unit})",
                                               row, line, cname)
                 parsed.append(int(x) if col.kind == "int" else x)
             elif col.kind == "bool":
                 lv = v.lower()
                 if lv not in ("true", "false", "1", "0"):
-                    raise DataValidationError(path, f"'{v}' is not true/false", row, line, cname)
+                    raise DataValidationError(path, f"'{excerpt(v)}' is not true/false", row, line, cname)
                 parsed.append(lv in ("true", "1"))
             else:
                 if col.choices is not None and v not in col.choices:
-                    raise DataValidationError(path, f"'{v}' is not one of {', '.join(col.choices)}",
+                    raise DataValidationError(path, f"'{excerpt(v)}' is not one of {', '.join(col.choices)}",
                                               row, line, cname)
                 parsed.append(v)
         if col.kind == "float":
@@ -270,7 +358,7 @@ def read_table(path: str | Path, schema: Schema) -> pd.DataFrame:
             seen: dict = {}
             for i, v in enumerate(df[key].tolist()):
                 if v in seen:
-                    raise DataValidationError(path, f"duplicate value '{v}' (first at row {seen[v]})",
+                    raise DataValidationError(path, f"duplicate value '{excerpt(v)}' (first at row {seen[v]})",
                                               i + 1, header_line + 1 + i, key)
                 seen[v] = i + 1
     df.attrs["source"] = str(path)
@@ -285,8 +373,8 @@ def read_table(path: str | Path, schema: Schema) -> pd.DataFrame:
 MAX_PLAUSIBLE_FORCE_N = 2000.0
 
 
-#: A participant id: letter first, then letters, digits, '_' or '-' (a wildcard and a folder name).
-PARTICIPANT_ID = r"[A-Za-z][A-Za-z0-9_-]*"
+#: A participant id: letter first, then up to 63 letters, digits, '_' or '-' (a wildcard and a folder name).
+PARTICIPANT_ID = r"[A-Za-z][A-Za-z0-9_-]{0,63}"
 
 MEASUREMENT_SCHEMA = Schema(
     name="max-force measurements (Table A.2 layout)",
@@ -308,6 +396,18 @@ ACTIVATION_SCHEMA = Schema(
 )
 
 
+def _column_list(names: Sequence[str], n: int = 20) -> str:
+    """The first ``n`` column names (each cut to an excerpt), and how many more."""
+    names = [excerpt(c) for c in names]
+    more = f", ... ({len(names) - n:,} more)" if len(names) > n else ""
+    return ", ".join(names[:n]) + more
+
+
+def _check_rows(path: str | Path, df: pd.DataFrame) -> None:
+    if len(df) == 0:
+        raise DataValidationError(path, "no data rows (the table has a header but no rows)")
+
+
 def _participant_columns(df: pd.DataFrame) -> list[str]:
     return [c for c in df.columns if c not in ("direction", "avg", "sd")]
 
@@ -320,18 +420,21 @@ def read_measurements(path: str | Path, directions: Sequence[str] | None = None)
     participant (avg/sd columns dropped).
     """
     df = read_table(path, MEASUREMENT_SCHEMA)
+    _check_rows(path, df)
     cols = _participant_columns(df)
     if not cols:
         raise DataValidationError(path, "no participant columns (expected e.g. S003, S004, ...)")
     for c in cols:
         if MEASUREMENT_SCHEMA.column(c) is None:
             raise DataValidationError(path, "participant column names must look like S003, P01, sim or "
-                                      "norm/weak", field_name=c)
+                                      "norm/weak (a letter, then up to 63 letters, digits, '_' or '-')",
+                                      field_name=c)
     if directions is not None:
         known = set(directions)
         for i, d in enumerate(df["direction"]):
             if d not in known:
-                raise DataValidationError(path, f"unknown test direction '{d}' (known: {', '.join(directions)})",
+                raise DataValidationError(path, f"unknown test direction '{excerpt(d)}' "
+                                          f"(known: {', '.join(directions)})",
                                           i + 1, None, "direction")
     return df.set_index("direction")[cols]
 
@@ -339,12 +442,13 @@ def read_measurements(path: str | Path, directions: Sequence[str] | None = None)
 def read_activations(path: str | Path, directions: Sequence[str] | None = None) -> pd.DataFrame:
     """Read a normalised-activation table (directions x participants, in [0, 1])."""
     df = read_table(path, ACTIVATION_SCHEMA)
+    _check_rows(path, df)
     cols = _participant_columns(df)
     if directions is not None:
         known = set(directions)
         for i, d in enumerate(df["direction"]):
             if d not in known:
-                raise DataValidationError(path, f"unknown test direction '{d}'", i + 1, None, "direction")
+                raise DataValidationError(path, f"unknown test direction '{excerpt(d)}'", i + 1, None, "direction")
     return df.set_index("direction")[cols]
 
 

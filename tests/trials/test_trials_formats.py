@@ -164,3 +164,28 @@ def test_participant_id_must_fit_the_max_force_table(tmp_path, directions):
     with pytest.raises(DataValidationError, match="must look like S003 or P01") as e:
         read_trials(p, names(directions))
     assert e.value.row == 1 and e.value.field == "participant"
+
+
+def test_validate_header_only_measurements_is_an_error_not_ok(tmp_path, capsys):
+    p = tmp_path / "m.csv"
+    p.write_text("direction,S003,S004\n")
+    assert main(["validate", "measurements", str(p), "--config", CONFIG]) == 2
+    cap = capsys.readouterr()
+    assert "OK" not in cap.out and str(p) in cap.err and "no data rows" in cap.err
+
+
+def test_long_cell_in_a_trial_row_is_echoed_as_a_short_excerpt(tmp_path, directions):
+    big = "templeAbove" + "X" * 100_000
+    p = write(tmp_path, GOOD + [f"P01,{big},main,1,skull,0,0,-4.8,91.7,39.5,0"])
+    with pytest.raises(DataValidationError) as e:
+        read_trials(p, names(directions))
+    msg = str(e.value)
+    assert e.value.row == 3 and e.value.field == "direction" and "unknown test direction" in msg
+    assert "X" * 69 + "..." in msg and "X" * 70 not in msg and len(msg) < 1000
+
+
+def test_semicolon_trial_table_says_so(tmp_path, directions):
+    p = write(tmp_path, ["P01;forehead;main;1;skull;0;0;-4,8;91,7;39,5;0"], header=HEADER.replace(",", ";"))
+    with pytest.raises(DataValidationError, match="looks semicolon-separated \\(decimal commas\\?\\)") as e:
+        read_trials(p, names(directions))
+    assert e.value.line == 1 and str(p) in str(e.value)

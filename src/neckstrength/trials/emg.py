@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from neckstrength.io import Column, DataValidationError, Schema, read_table
+from neckstrength.io import MAX_SIGNALS_BYTES, Column, DataValidationError, Schema, read_table
 from neckstrength.trials.formats import BLOCKS, EMG_CHANNELS, emg_channels
 
 
@@ -47,7 +47,7 @@ def envelope_values(signals_path: str | Path, trials: pd.DataFrame, delay_s: flo
     Signals file (long CSV): participant, direction, [block], trial, time_s, one column per channel (``SCM_R``,
     ...), one row per sample. Every trial in it must be in the trial table with a ``peak_time_s``.
     """
-    sig = read_table(signals_path, signals_schema())
+    sig = read_table(signals_path, signals_schema(), max_bytes=MAX_SIGNALS_BYTES)     # one row per sample
     n_comment = len(sig.attrs.get("comments", []))
     if "block" not in sig.columns:
         sig["block"] = "main"

@@ -37,7 +37,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from neckstrength.io import MEASUREMENT_SCHEMA, Column, DataValidationError, Schema, read_table
+from neckstrength.io import MEASUREMENT_SCHEMA, Column, DataValidationError, Schema, excerpt, read_table
 
 WRENCH = ("Mx", "My", "Mz", "Fx", "Fy", "Fz")
 
@@ -102,20 +102,23 @@ def read_trials(path: str | Path, directions: Sequence[str], frames: Sequence[st
     df["block"] = [b if b else "main" for b in df["block"]]
     known = set(directions) | set(CARDINAL)
     for r in df.itertuples():
-        if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_-]*", r.participant) or MEASUREMENT_SCHEMA.column(r.participant) is None:
-            raise DataValidationError(path, f"participant id '{r.participant}' must look like S003 or P01 (S + digits, "
-                                      "or P + letters, digits, _ or -): it becomes a column of the max-force table",
-                                      r.row, r.line, "participant")
+        if (not re.fullmatch(r"[A-Za-z][A-Za-z0-9_-]*", r.participant)
+                or MEASUREMENT_SCHEMA.column(r.participant) is None):
+            raise DataValidationError(path, f"participant id '{excerpt(r.participant)}' must look like S003 or P01 "
+                                      "(a letter, then up to 63 letters, digits, _ or -): it becomes a column of "
+                                      "the max-force table", r.row, r.line, "participant")
         if r.direction not in known:
-            raise DataValidationError(path, f"unknown test direction '{r.direction}' (configured: "
+            raise DataValidationError(path, f"unknown test direction '{excerpt(r.direction)}' (configured: "
                                       f"{', '.join(directions)}; cardinal: {', '.join(CARDINAL)})",
                                       r.row, r.line, "direction")
         if r.direction in CARDINAL and r.block == "main":
-            raise DataValidationError(path, f"cardinal direction '{r.direction}' needs block 'start' or 'end'",
+            raise DataValidationError(path, f"cardinal direction '{excerpt(r.direction)}' needs block 'start' "
+                                      "or 'end'",
                                       r.row, r.line, "block")
         if r.direction not in CARDINAL and r.block != "main":
-            raise DataValidationError(path, f"test direction '{r.direction}' in block '{r.block}': only cardinal "
-                                      "directions are measured at the start and end", r.row, r.line, "block")
+            raise DataValidationError(path, f"test direction '{excerpt(r.direction)}' in block '{r.block}': "
+                                      "only cardinal directions are measured at the start and end",
+                                      r.row, r.line, "block")
         w = np.array([getattr(r, c) for c in WRENCH])
         if not np.any(w != 0):
             raise DataValidationError(path, "all six wrench components are zero (no effort recorded)",
@@ -124,7 +127,8 @@ def read_trials(path: str | Path, directions: Sequence[str], frames: Sequence[st
     for r in df.itertuples():
         key = (r.participant, r.direction, r.block, r.trial)
         if key in seen:
-            raise DataValidationError(path, f"duplicated trial: participant {r.participant}, direction {r.direction}, "
+            raise DataValidationError(path, f"duplicated trial: participant {excerpt(r.participant)}, direction "
+                                      f"{excerpt(r.direction)}, "
                                       f"block {r.block}, trial {r.trial} already at row {seen[key]}",
                                       r.row, r.line, "trial")
         seen[key] = r.row
