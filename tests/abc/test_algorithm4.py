@@ -113,3 +113,49 @@ def test_abc_smc_improves_fit_and_respects_budget(env):
     # the deep extensors (TC-E) are well identified by the free sampler too
     k = list(m.muscle_names).index("TC-E")
     assert abs(r.mean()[k] - 275) / 275 < 0.15
+
+
+class _Kill(Exception):
+    pass
+
+
+def _compare(r, u):
+    """Every output of a resumed run equals the uninterrupted run's (scores: apart from the seconds)."""
+    assert r.D_fc == u.D_fc and r.iterations == u.iterations and r.converged == u.converged
+    assert np.array_equal(r.f_c, u.f_c) and np.array_equal(r.sigma_c, u.sigma_c)
+    for name in ("history", "dk_hist", "d_final", "fit", "candidates"):
+        a, b = getattr(r, name), getattr(u, name)
+        assert a.to_csv(index=False) == b.to_csv(index=False), name
+    assert (r.scores.drop(columns="seconds").to_csv(index=False)
+            == u.scores.drop(columns="seconds").to_csv(index=False))
+
+
+def test_resumed_run_is_identical_to_an_uninterrupted_one(env, tmp_path):
+    """Killed after iteration k (k = 1, 2 and the last), the resumed run writes the same d_by_direction, D_fc,
+    candidates and history as a run that was never interrupted."""
+    cfg, full, d = env
+    m = model_from_config(full, cfg, "p2m7")
+    data = build_dataset(m, d, "norm", CH5, THESIS, cfg["data"]["measurements"], cfg["data"]["activations"])
+    f0, a = bootstrap_prior(m, data, "back")
+    s = ABCSettings(sigma0=0.3, max_iter=3, eps_D=0.999, store_candidates=500)
+    u = estimate_strengths(m, data, s, f0, a, rng=np.random.default_rng(11), progress=None)
+    assert u.iterations == 3 and not u.converged
+    for k in (1, 2, 3):
+        ck = tmp_path / f"ck{k}.npz"
+
+        def kill_after(line, k=k):             # the progress line of iteration k+1 comes before its checkpoint
+            if f"iteration {k + 1}/" in line:
+                raise _Kill
+
+        if k < 3:
+            with pytest.raises(_Kill):
+                estimate_strengths(m, data, s, f0, a, rng=np.random.default_rng(11), checkpoint=ck,
+                                   progress=kill_after)
+        else:                                  # killed after the last checkpoint, before the outputs
+            estimate_strengths(m, data, s, f0, a, rng=np.random.default_rng(11), checkpoint=ck, progress=None)
+        assert int(np.load(ck)["iteration"]) == k
+        seen = []
+        r = estimate_strengths(m, data, s, f0, a, rng=np.random.default_rng(11), checkpoint=ck,
+                               progress=seen.append)
+        assert f"resuming after iteration {k}" in seen[0]
+        _compare(r, u)

@@ -157,7 +157,6 @@ def estimate_strengths(model: ReducedModel, data: Dataset, settings: ABCSettings
     rng = rng or np.random.default_rng(0)
     s = settings
     _THREADS["n"] = max(1, int(n_threads))  # directions solved in parallel threads (same results)
-    cache = BasisCache()  # optimal bases stay valid across iterations: nearby candidates reuse them
     pidx, pnames = free_parameters(model, s.tie_sides)
     mp = len(pnames)
     # parameter value = strength of (either) muscle of the parameter; tied sides start from their mean
@@ -168,26 +167,40 @@ def estimate_strengths(model: ReducedModel, data: Dataset, settings: ABCSettings
     key = _settings_key(model, data, s, f0)
     hist_rows, score_rows, dk_rows, cand_rows = [], [], [], []
     start_iter = 0
+    d_sum = None                       # the last iteration's per-direction d summary (5 quantiles and the mean)
     if checkpoint is not None and Path(checkpoint).exists():
         ck = np.load(checkpoint, allow_pickle=False)
-        if str(ck["key"]) == key:
+        if str(ck["key"]) == key and "rng_state" not in ck.files:
+            if progress:
+                progress(f"[{model.name}/{data.name}] {checkpoint} is of an older format (no generator state): "
+                         "starting over")
+        elif str(ck["key"]) == key:
+            # everything an uninterrupted run would hold after this iteration: the updated estimate, the tables,
+            # the generator of the stored candidates and the iteration's d summary (not recomputed from the
+            # updated estimate), so that the resumed run is identical to one that never stopped
             theta, sigma, start_iter = ck["theta"], ck["sigma"], int(ck["iteration"])
             tables = json.loads(str(ck["tables"]))
             hist_rows, score_rows, dk_rows, cand_rows = (tables[k] for k in ("hist", "score", "dk", "cand"))
+            rng.bit_generator.state = json.loads(str(ck["rng_state"]))
+            d_sum = ck["d_sum"]
             if progress:
                 progress(f"[{model.name}/{data.name}] resuming after iteration {start_iter} from {checkpoint}")
     bins = np.linspace(0, 1, 41)
     converged = bool(score_rows and score_rows[-1]["converged"])
     it = start_iter
-    d = None
     while not converged and it < s.max_iter:
         it += 1
         t0 = time.time()
+        # the solver's basis cache lives for one iteration (its two passes share it): a warm start changes the
+        # last digit of a wrench, so a cache kept across iterations would make a resumed run differ from an
+        # uninterrupted one
+        cache = BasisCache()
         samples, P, th = candidate_grid(theta, sigma)
         F = th[:, pidx]
         w, _, status = _simulate(model, F, data, chunk, False, cache)
         d = data_discrepancy(w, data.w_meas[None, :], s.epsilon)
         D = composite_score(d)
+        d_sum = np.vstack([np.percentile(d, [5, 25, 50, 75, 95], axis=0), d.mean(axis=0)[None, :]])
         thr = np.percentile(D, s.q)
         acc = np.nonzero(D >= thr)[0]
         # activations only for the accepted candidates (Eq. 5.7), accumulated in chunks
@@ -227,22 +240,24 @@ def estimate_strengths(model: ReducedModel, data: Dataset, settings: ABCSettings
             tables = json.dumps({"hist": hist_rows, "score": score_rows, "dk": dk_rows, "cand": cand_rows},
                                 default=float)
             tmp = Path(str(checkpoint) + ".tmp.npz")
-            np.savez(tmp, key=key, theta=theta, sigma=sigma, iteration=it, tables=tables)
+            np.savez(tmp, key=key, theta=theta, sigma=sigma, iteration=it, tables=tables, d_sum=d_sum,
+                     rng_state=json.dumps(rng.bit_generator.state))
             os.replace(tmp, checkpoint)
-    # final point estimate and its fit
+    # final point estimate and its fit (from a fresh cache, as after a resume)
+    cache = BasisCache()
     f_c_muscles = theta[pidx]
     w_fc, _, st_fc = _simulate(model, f_c_muscles[None, :], data, chunk, False, cache)
     d_fc = data_discrepancy(w_fc[0], data.w_meas, s.epsilon)
     fit = pd.DataFrame({"direction": data.directions, "measured_N": data.forces,
                         "simulated_N": w_fc[0] / data.force_scale, "d": d_fc,
                         "status": [STATUS_CODES[int(x)] for x in st_fc[0]]})
-    if d is None:  # resumed after convergence: recompute the last iteration's d for the per-direction summary
+    if d_sum is None:  # max_iter 0: the candidates of the prior estimate
         samples, P, th = candidate_grid(theta, sigma)
         w, _, _ = _simulate(model, th[:, pidx], data, chunk, False, cache)
         d = data_discrepancy(w, data.w_meas[None, :], s.epsilon)
-    dq = np.percentile(d, [5, 25, 50, 75, 95], axis=0)
-    d_final = pd.DataFrame({"direction": data.directions, "d_q05": dq[0], "d_q25": dq[1], "d_median": dq[2],
-                            "d_q75": dq[3], "d_q95": dq[4], "d_mean": d.mean(axis=0)})
+        d_sum = np.vstack([np.percentile(d, [5, 25, 50, 75, 95], axis=0), d.mean(axis=0)[None, :]])
+    d_final = pd.DataFrame({"direction": data.directions, "d_q05": d_sum[0], "d_q25": d_sum[1],
+                            "d_median": d_sum[2], "d_q75": d_sum[3], "d_q95": d_sum[4], "d_mean": d_sum[5]})
     return ABCResult(model.name, data.name, pnames, list(model.muscle_names), f0, scale_a, theta, sigma,
                      float(composite_score(d_fc)), it, converged, pd.DataFrame(hist_rows), pd.DataFrame(score_rows),
                      pd.DataFrame(dk_rows), d_final, fit, pd.DataFrame(cand_rows), asdict(s))
