@@ -41,7 +41,7 @@ def test_exact_window_is_at_least_the_ten_points_and_its_wrench_is_in_the_window
     for share in (0.5, 1.0):
         th = [np.array([share])]
         pts = Simulator(ctx, compose(ctx, [EFFECTS["direction_tolerance"](ctx, method="points")], th)).forces(F)
-        inst = compose(ctx, [EFFECTS["direction_tolerance"](ctx)], th)
+        inst = compose(ctx, [EFFECTS["direction_tolerance"](ctx, method="exact")], th)
         for i, f in enumerate(F):
             for k in ks:
                 spec = _spec(ctx, k, share)
@@ -54,7 +54,7 @@ def test_exact_window_is_at_least_the_ten_points_and_its_wrench_is_in_the_window
                 lp = max_wrench(inst.R, inst.JT, f, v, inst.lb[k], inst.ub[k])
                 assert lp.w * np.linalg.norm(v[spec.dm:]) * spec.c >= r.force * (1 - 1e-7)
     # the effect's simulator gives these maxima (and at least the ten points' forces)
-    sim = Simulator(ctx, compose(ctx, [EFFECTS["direction_tolerance"](ctx)], [np.array([1.0])]))
+    sim = Simulator(ctx, compose(ctx, [EFFECTS["direction_tolerance"](ctx, method="exact")], [np.array([1.0])]))
     fe = sim.forces(F)
     assert np.all(fe >= pts * (1 - 1e-9)) and np.any(fe > pts * 1.01)
 
@@ -96,7 +96,7 @@ def test_zero_window_is_the_plain_max_wrench_force(model, request):
 def test_method_setting(ctx_p2):
     e = EFFECTS["direction_tolerance"](ctx_p2, method="points")
     assert compose(ctx_p2, [e], [np.array([1.0])]).window is None
-    assert compose(ctx_p2, [EFFECTS["direction_tolerance"](ctx_p2)], [np.array([1.0])]).window is not None
+    assert compose(ctx_p2, [EFFECTS["direction_tolerance"](ctx_p2, method="exact")], [np.array([1.0])]).window is not None
     with pytest.raises(ValueError, match="exact"):
         compose(ctx_p2, [EFFECTS["direction_tolerance"](ctx_p2, method="grid")], [np.array([1.0])])
 
@@ -105,7 +105,7 @@ def test_refresh_makes_the_fits_forces_exact_at_the_refresh_point(ctx_p2):
     # the fit's forces are the maximum over the owner's active candidates; after a refresh at F they reach the window
     # maxima there (within the tolerance), and an owner's set does not depend on the others in the batch
     ctx = ctx_p2
-    inst = compose(ctx, [EFFECTS["direction_tolerance"](ctx)], [np.array([1.0])])
+    inst = compose(ctx, [EFFECTS["direction_tolerance"](ctx, method="exact")], [np.array([1.0])])
     F = _strengths(ctx, 4, seed=9)
     sim = Simulator(ctx, inst)
     phi = np.log(F[:, [list(sim.pidx).index(j) for j in range(sim.pidx.max() + 1)]])
@@ -127,6 +127,6 @@ def test_no_spurious_zero_when_a_warm_start_fails(ctx_s3):
     ctx = ctx_s3
     f = _strengths(ctx, 12, seed=5, spread=0.6)[9:10]
     th = [np.array([1.0])]
-    exact = Simulator(ctx, compose(ctx, [EFFECTS["direction_tolerance"](ctx)], th)).forces(f)
+    exact = Simulator(ctx, compose(ctx, [EFFECTS["direction_tolerance"](ctx, method="exact")], th)).forces(f)
     pts = Simulator(ctx, compose(ctx, [EFFECTS["direction_tolerance"](ctx, method="points")], th)).forces(f)
     assert np.all(exact >= pts * (1 - 1e-9)) and pts[0, 24] > 300

@@ -216,7 +216,8 @@ def test_estimate_writes_the_decision_for_a_model_with_the_group(tmp_path):
         os.chdir(cwd)
     hist = pd.read_csv(tmp_path / "decision.csv", comment="#")
     assert len(hist) == len(prep["used"]) + 1 and hist["t"].tolist() == list(range(len(hist)))
-    assert got["decision"] in ("deficit", "no deficit", "undecided") and 0 <= got["p_deficit"] <= 1
+    # S003's forces: the model fits them only to about 30% RMS, far beyond 3 x the 5% noise: not decidable
+    assert got["decision"] == "model misfit" and hist["misfit_rms"].iloc[-1] > 0.15 and 0 <= got["p_deficit"] <= 1
     assert got["log_bf"] == pytest.approx(hist["log_bf"].iloc[-1], rel=1e-5)
 
 
