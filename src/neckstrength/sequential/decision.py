@@ -33,7 +33,6 @@ convolved with the noise.
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass, replace
 from typing import Sequence
@@ -170,21 +169,6 @@ class HypothesisPosterior(JointPosterior):
             return super().resample()
         self._move(max(1, self.settings.n_moves))
         self.n_resamples += 1
-
-
-def _snapshot(post: JointPosterior) -> dict:
-    return {"F": post.F.copy(), "ancestor": post.ancestor.copy(), "W": post.W.copy(), "log_iw": post.log_iw.copy(),
-            "loglik": post.loglik.copy(), "tests": [dict(t) for t in post.tests], "n_resamples": post.n_resamples,
-            "n_lps": post.n_lps, "last_acceptance": post.last_acceptance, "log_evidence": post.log_evidence,
-            "log_evidence_var": post.log_evidence_var, "rng": copy.deepcopy(post.rng.bit_generator.state)}
-
-
-def _restore(post: JointPosterior, s: dict) -> None:
-    post.F, post.W, post.log_iw, post.loglik = s["F"], s["W"], s["log_iw"], s["loglik"]
-    post.ancestor, post.tests = s["ancestor"], s["tests"]
-    post.n_resamples, post.n_lps, post.last_acceptance = s["n_resamples"], s["n_lps"], s["last_acceptance"]
-    post.log_evidence, post.log_evidence_var = s["log_evidence"], s["log_evidence_var"]
-    post.rng.bit_generator.state = s["rng"]
 
 
 class DeficitDecision:
@@ -325,13 +309,13 @@ class DeficitDecision:
 
     # -- updates
     def push(self, direction: str, force: float, activations=None) -> None:
-        self._snaps.append({h: _snapshot(p) for h, p in self.posts.items()})
+        self._snaps.append({h: p.snapshot() for h, p in self.posts.items()})
         try:
             self._both(lambda p: p.update(direction, force, activations), list(self.posts.values()))
         except Exception:
             s = self._snaps.pop()
             for h, p in self.posts.items():
-                _restore(p, s[h])
+                p.restore(s[h])
             raise
         self.history.append(self.summary())
 
@@ -340,7 +324,7 @@ class DeficitDecision:
             raise ValueError("nothing to undo")
         s = self._snaps.pop()
         for h, p in self.posts.items():
-            _restore(p, s[h])
+            p.restore(s[h])
         self.history.pop()
 
     # -- the next test

@@ -247,6 +247,24 @@ class JointPosterior:
         return pd.DataFrame({"muscle": list(self.model.muscle_names), "f_c": E, "v_c": V, "sd_c": np.sqrt(V),
                              "entropy": H})
 
+    # -- undo support: everything an update changes, and its restoration
+    def snapshot(self) -> dict:
+        """The state an :meth:`update` changes (candidates, weights, tests, counters, evidence, random state)."""
+        import copy
+
+        return {"F": self.F.copy(), "ancestor": self.ancestor.copy(), "W": self.W.copy(), "log_iw": self.log_iw.copy(),
+                "loglik": self.loglik.copy(), "tests": [dict(t) for t in self.tests], "n_resamples": self.n_resamples,
+                "n_lps": self.n_lps, "last_acceptance": self.last_acceptance, "log_evidence": self.log_evidence,
+                "log_evidence_var": self.log_evidence_var, "rng": copy.deepcopy(self.rng.bit_generator.state)}
+
+    def restore(self, s: dict) -> None:
+        """Back to a :meth:`snapshot` (undo-then-measure equals a replay of the remaining measurements)."""
+        self.F, self.W, self.log_iw, self.loglik = s["F"], s["W"], s["log_iw"], s["loglik"]
+        self.ancestor, self.tests = s["ancestor"], s["tests"]
+        self.n_resamples, self.n_lps, self.last_acceptance = s["n_resamples"], s["n_lps"], s["last_acceptance"]
+        self.log_evidence, self.log_evidence_var = s["log_evidence"], s["log_evidence_var"]
+        self.rng.bit_generator.state = s["rng"]
+
     # -- update and resampling
     def update(self, direction: str, force: float, activations=None) -> pd.DataFrame:
         if direction not in self.directions:

@@ -11,7 +11,6 @@ posterior mean / sd / marginal entropy. ``history`` keeps the estimate and P(def
 
 from __future__ import annotations
 
-import copy
 import hashlib
 from dataclasses import dataclass
 from typing import Sequence
@@ -124,35 +123,19 @@ class JointState:
         return _Pending(direction, float(force), activations)
 
     def push(self, p: _Pending) -> None:
-        post = self.post
-        self._snaps.append({"F": post.F.copy(), "ancestor": post.ancestor.copy(), "W": post.W.copy(),
-                            "log_iw": post.log_iw.copy(),
-                            "loglik": post.loglik.copy(), "tests": [dict(t) for t in post.tests],
-                            "n_resamples": post.n_resamples, "n_lps": post.n_lps,
-                            "last_acceptance": post.last_acceptance,
-                            "log_evidence": post.log_evidence, "log_evidence_var": post.log_evidence_var,
-                            "rng": copy.deepcopy(post.rng.bit_generator.state)})
+        self._snaps.append(self.post.snapshot())
         try:
-            post.update(p.direction, p.force, p.activations)
+            self.post.update(p.direction, p.force, p.activations)
         except Exception:
-            self._restore(self._snaps.pop())
+            self.post.restore(self._snaps.pop())
             raise
         self.history.append(self._summary(p))
 
     def undo(self) -> None:
         if not self._snaps:
             raise ValueError("nothing to undo")
-        self._restore(self._snaps.pop())
+        self.post.restore(self._snaps.pop())
         self.history.pop()
-
-    def _restore(self, s: dict) -> None:
-        post = self.post
-        post.F, post.W, post.log_iw, post.loglik = s["F"], s["W"], s["log_iw"], s["loglik"]
-        post.ancestor = s["ancestor"]
-        post.tests = s["tests"]
-        post.n_resamples, post.n_lps, post.last_acceptance = s["n_resamples"], s["n_lps"], s["last_acceptance"]
-        post.log_evidence, post.log_evidence_var = s["log_evidence"], s["log_evidence_var"]
-        post.rng.bit_generator.state = s["rng"]
 
     # -- proposals
     def propose(self, rng: np.random.Generator, gamma: np.ndarray | None = None) -> JointProposal:
