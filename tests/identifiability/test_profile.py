@@ -120,6 +120,9 @@ def test_highs_lp_on_a_hand_solved_case():
     # an activation lower bound on the antagonist costs its force
     assert highs_max_wrench(R, JT, np.array([1.0]), np.array([0.0, 10.0]), np.array([30.0, 50.0])) == \
         pytest.approx(20.0)
+    # bounds no activation meets (the antagonist held above what the agonist can pull): no wrench, 0 as the
+    # batched solver reports it (found at full size with EMG bounds)
+    assert highs_max_wrench(R, JT, np.array([1.0]), np.array([0.0, 40.0]), np.array([30.0, 50.0])) == 0.0
 
 
 def test_batched_lm_matches_scipy_on_a_bounded_problem():

@@ -15,7 +15,8 @@ from neckstrength.identifiability.profile import Battery
 
 
 def highs_max_wrench(R: np.ndarray, JT: np.ndarray, u: np.ndarray, x_lo: np.ndarray, x_hi: np.ndarray) -> float:
-    """Max wrench of one LP with HiGHS (dense build, fresh instance); NaN if HiGHS does not report optimal."""
+    """Max wrench of one LP with HiGHS (dense build, fresh instance); 0 if infeasible (bounds no activation meets),
+    NaN for any other status than optimal."""
     n, m = R.shape
     b = JT @ u
     A = np.hstack([R, -b[:, None]])
@@ -36,7 +37,10 @@ def highs_max_wrench(R: np.ndarray, JT: np.ndarray, u: np.ndarray, x_lo: np.ndar
     lp.a_matrix_.num_col_, lp.a_matrix_.num_row_ = m + 1, n
     h.passModel(lp)
     h.run()
-    if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+    st = h.getModelStatus()
+    if st == highspy.HighsModelStatus.kInfeasible:
+        return 0.0                 # no wrench within the bounds (e.g. EMG bounds): as the batched solver reports it
+    if st != highspy.HighsModelStatus.kOptimal:
         return float("nan")
     return float(h.getSolution().col_value[m])
 
