@@ -93,6 +93,16 @@ def fig_profiles(prof: pd.DataFrame, deficit_group: str, model_name: str, out_pn
             ax.plot(s["r"], s["rms"], styles.get(proto, "-"), marker="o", ms=3, color=colors[ds],
                     label=f"{ds}, {proto} ({int(s['n_tests'].iloc[0])} tests)")
         ax.axvline(1.0, color="0.6", lw=0.8)
+        # a profile point where the bounds leave a test unproducible (residual log 1e-3) would squash the rest:
+        # the axis stops above the others and says how many points lie beyond it
+        v = q["rms"].to_numpy(float)
+        v = v[np.isfinite(v)]
+        if len(v) and v.max() > 5 * np.quantile(v, 0.9):
+            top = 1.3 * np.quantile(v, 0.9)
+            n_off = int((v > top).sum())
+            ax.set_ylim(0, top)
+            ax.text(0.02, 0.97, f"{n_off} point(s) above {top:.3f} not shown",
+                    transform=ax.transAxes, fontsize=7, va="top")
         ax.set_xlabel(f"{deficit_group} factor r (x 'norm' f_a)")
         ax.set_ylabel("best RMS log residual")
         ax.set_title(f"{deficit_group} profile on deficit truths ({b} bounds)", fontsize=10)
