@@ -40,6 +40,8 @@ from dataclasses import dataclass
 import highspy
 import numpy as np
 
+from neckstrength.wrench.problem import set_colwise_matrix
+
 _EPS = 1e-12
 _SIDES = 8          # the circumscribed polygon of a whole cap (before it is split into sectors)
 _TANGENTS = 5       # tangents of a sector's outer arc
@@ -268,19 +270,7 @@ class WindowSolver:
         lp.row_lower_ = np.zeros(self.n)
         lp.row_upper_ = np.zeros(self.n)
         lp.sense_ = highspy.ObjSense.kMaximize
-        A[np.abs(A) < 1e-15] = 0.0
-        starts, index, value = [0], [], []
-        for j in range(nc):
-            nz = np.nonzero(A[:, j])[0]
-            index.extend(nz.tolist())
-            value.extend(A[nz, j].tolist())
-            starts.append(len(index))
-        lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
-        lp.a_matrix_.start_ = np.array(starts, dtype=np.int32)
-        lp.a_matrix_.index_ = np.array(index, dtype=np.int32)
-        lp.a_matrix_.value_ = np.array(value, dtype=float)
-        lp.a_matrix_.num_col_ = nc
-        lp.a_matrix_.num_row_ = self.n
+        set_colwise_matrix(lp, A)
         self.h.passModel(lp)
         self.wcols = np.arange(self.m, nc, dtype=np.int32)
         self.fa = np.asarray(fa, float)

@@ -41,6 +41,25 @@ class MaxWrenchResult:
         return self.status == "optimal"
 
 
+def set_colwise_matrix(lp: "highspy.HighsLp", A: np.ndarray) -> None:
+    """``lp``'s constraint matrix from the dense ``A`` (rows x columns), column-wise sparse, entries below 1e-15 in
+    magnitude dropped (the max-wrench LP and the gap diagnosis's window LPs build theirs this way)."""
+    A = np.array(A, dtype=float)
+    A[np.abs(A) < 1e-15] = 0.0
+    starts, index, value = [0], [], []
+    for j in range(A.shape[1]):
+        nz = np.nonzero(A[:, j])[0]
+        index.extend(nz.tolist())
+        value.extend(A[nz, j].tolist())
+        starts.append(len(index))
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+    lp.a_matrix_.start_ = np.array(starts, dtype=np.int32)
+    lp.a_matrix_.index_ = np.array(index, dtype=np.int32)
+    lp.a_matrix_.value_ = np.array(value, dtype=float)
+    lp.a_matrix_.num_col_ = A.shape[1]
+    lp.a_matrix_.num_row_ = A.shape[0]
+
+
 class _DirectionLP:
     """One HiGHS instance for a fixed (R, b); strengths and bounds change per solve."""
 
@@ -60,20 +79,7 @@ class _DirectionLP:
         lp.row_lower_ = np.zeros(n)
         lp.row_upper_ = np.zeros(n)
         lp.sense_ = highspy.ObjSense.kMaximize
-        A = np.hstack([R, -b[:, None]])
-        A[np.abs(A) < 1e-15] = 0.0
-        starts, index, value = [0], [], []
-        for j in range(m + 1):
-            nz = np.nonzero(A[:, j])[0]
-            index.extend(nz.tolist())
-            value.extend(A[nz, j].tolist())
-            starts.append(len(index))
-        lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
-        lp.a_matrix_.start_ = np.array(starts, dtype=np.int32)
-        lp.a_matrix_.index_ = np.array(index, dtype=np.int32)
-        lp.a_matrix_.value_ = np.array(value, dtype=float)
-        lp.a_matrix_.num_col_ = m + 1
-        lp.a_matrix_.num_row_ = n
+        set_colwise_matrix(lp, np.hstack([R, -b[:, None]]))
         self.h.passModel(lp)
         self.scale = float(np.abs(R).sum())
         self.idx = np.arange(m, dtype=np.int32)
