@@ -29,7 +29,8 @@ from neckstrength.gap.discriminate import DiscriminateSettings
 from neckstrength.gap.effects import GapContext
 from neckstrength.gap.engine import CalibrationSettings
 from neckstrength.gap.fit import FitSettings
-from neckstrength.io import DataValidationError, read_activations
+from neckstrength.errors import ConfigError, DataValidationError, UndeclaredSettingError  # noqa: F401  (re-exported)
+from neckstrength.io import read_activations
 from neckstrength.model.full import FullModel, load_full_model
 from neckstrength.model.geometry import (
     HeadEllipsoid,
@@ -46,18 +47,6 @@ from neckstrength.sequential.joint import JointSettings
 
 
 SCHEMA = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
-
-
-class ConfigError(DataValidationError):
-    """The config has an unknown setting, a value outside its domain, or names a data set the data lack."""
-
-    def __init__(self, source: str | Path, problems: Sequence[str]):
-        self.problems = list(problems)
-        super().__init__(source, self.problems[0])
-        self.args = ("\n".join(f"{source}: {p}" for p in self.problems),)
-
-    def __str__(self) -> str:
-        return self.args[0]
 
 
 def unknown_settings(cfg: Any, schema: Mapping, path: str = "") -> list[str]:
@@ -191,10 +180,6 @@ def check_config_datasets(cfg: Mapping, source: str | Path = "config") -> None:
     check("gap.datasets", cfg.get("gap", {}).get("datasets"), gap, simulated)
     if problems:
         raise ConfigError(source, problems)
-
-
-class UndeclaredSettingError(RuntimeError):
-    """A rule read a config setting that its ``params`` do not declare (so a change to it would not rerun it)."""
 
 
 class Settings(Mapping):
@@ -451,7 +436,29 @@ def decision_settings(config: Mapping, **over):
         if k in d:
             d[k] = tuple(d[k])
     d.update(over)
+    if isinstance(d.get("calibration"), (str, Path)):
+        d["calibration"] = load_decision_calibration(d["calibration"])
     return DecisionSettings(**d)
+
+
+def load_decision_calibration(path: str | Path):
+    """``clinician.decision.calibration``: the recalibration file the decision study writes
+    (``decision_calibration.csv``). A relative path is read from the working folder, else from the package's
+    own ``data/`` (the shipped file), so sessions started anywhere find it."""
+    from neckstrength.sequential.decision import DecisionCalibration
+
+    p = Path(path)
+    if not p.is_absolute() and not p.exists():
+        alt = Path(__file__).resolve().parents[2] / p
+        if alt.exists():
+            p = alt
+    if not p.is_file():
+        raise DataValidationError(path, "clinician.decision.calibration: no such file (the decision study's "
+                                        "decision_calibration.csv), or set it to null")
+    try:
+        return DecisionCalibration.from_frame(pd.read_csv(p, comment="#"), source=str(path))
+    except ValueError as exc:
+        raise DataValidationError(path, str(exc)) from None
 
 
 def decision_study_settings(config: Mapping, model_name: str):
@@ -491,7 +498,19 @@ def gap_context(config: Mapping, model_name: str, directions: pd.DataFrame) -> G
         tie = bool(config["chapter5"]["settings"].get(model_name, {}).get("tie_sides", False))
     emg = tuple(config["chapter5"].get("emg_groups", {}).get(model_name, []))
     return GapContext(full, model, d, np.asarray(config["geometry"]["head"]["centre"], float), emg,
-                      tuple(g["shoulder_muscles"]), bool(tie), dict(g.get("effect_settings") or {}))
+                      tuple(g["shoulder_muscles"]), bool(tie), dict(g.get("effect_settings") or {}),
+                      _gap_posture_tables(config), 0.0, str(config.get("postures", {}).get("force_length", "relative")))
+
+
+def _gap_posture_tables(config: Mapping) -> dict | None:
+    """The sagittal posture tables (neutral, flex20, ext20) for the gap diagnosis's ``posture_drift`` and the
+    posture protocol; None when the model folder has none (the effect then does not apply)."""
+    from neckstrength.postures.tables import SAGITTAL_POSTURES, load_posture_tables
+
+    try:
+        return load_posture_tables(config["data"]["model_dir"], SAGITTAL_POSTURES)
+    except FileNotFoundError:
+        return None
 
 
 def gap_measurements_path(config: Mapping) -> str:

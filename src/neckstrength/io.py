@@ -30,6 +30,8 @@ from typing import Iterable, Sequence
 import numpy as np
 import pandas as pd
 
+from neckstrength.errors import EXCERPT_CHARS, DataValidationError, excerpt  # noqa: F401  (re-exported)
+
 
 #: Largest table file the readers accept (bytes; 50 MB). A bigger measurement, activation or trial table is not a
 #: lab's table (25 directions x a few hundred participants, a few thousand trials are a few MB); it is refused
@@ -42,36 +44,6 @@ MAX_SIGNALS_BYTES = 2_000_000_000
 #: Most columns a table may have (10,000): a table with more participant columns is refused at its header,
 #: before its rows are read, and the column names are not listed.
 MAX_TABLE_COLUMNS = 10_000
-
-#: Characters of a cell or a column name an error message echoes; a longer one is cut and ends in "...".
-EXCERPT_CHARS = 80
-
-
-def excerpt(value: object, n: int = EXCERPT_CHARS) -> str:
-    """``value`` as text, cut to ``n`` characters plus "..." when longer (for error messages)."""
-    text = str(value)
-    return text if len(text) <= n else text[:n] + "..."
-
-
-class DataValidationError(ValueError):
-    """A data file failed validation; the message names file, row and field."""
-
-    def __init__(self, path: str | Path, problem: str, row: int | None = None,
-                 line: int | None = None, field_name: str | None = None):
-        self.path = str(path)
-        self.row = row
-        self.line = line
-        self.field = field_name
-        self.problem = problem
-        where = [self.path]
-        if row is not None:
-            where.append(f"row {row}" + (f" (line {line})" if line is not None else ""))
-        elif line is not None:
-            where.append(f"line {line}")
-        if field_name is not None:
-            where.append(f"field '{excerpt(field_name)}'")
-        super().__init__(", ".join(where) + ": " + problem)
-
 
 @dataclass(frozen=True)
 class Column:
