@@ -23,6 +23,9 @@ finer_groups           share of independent control of the elements inside each 
 origin_offset          C0-C1 (skull-frame origin) displaced from its head-pad estimate (x, y)
 point_scale            test points farther from / closer to the head centre than reconstructed
 shoulder_girdle        trapezius and levator scapulae pull on an unfixed scapula: shared anchor capacity
+submaximal_effort      effort below 1 that varies smoothly with the push direction (a dipole field)
+posture_drift          head-neck flexion / extension drift during the push (shipped posture tables)
+anthropometric_scaling neck size relative to the head (joint spacing and moment arms)
 =====================  ===============================================================================
 """
 
@@ -60,7 +63,10 @@ class GapContext:
     (points ``px..pz``, normals ``nx..nz``, unit wrenches ``u_*``, ``force_scale``, ``planes``).
     ``emg_groups``: base names of the model's EMG-recorded groups (config ``chapter5.emg_groups``);
     ``shoulder_muscles``: full-model base names of the muscles attached to the shoulder girdle;
-    ``settings``: per-effect physical constants (config ``gap.effect_settings``).
+    ``settings``: per-effect physical constants (config ``gap.effect_settings``). ``postures``: the shipped
+    posture tables by name (:func:`neckstrength.postures.load_posture_tables`; ``posture_drift`` needs neutral and
+    flex20 or ext20), ``posture_angle``: the flexion angle (deg) of the posture the directions are tested in,
+    ``force_length``: config ``postures.force_length``.
     """
 
     full: FullModel
@@ -71,6 +77,9 @@ class GapContext:
     shoulder_muscles: tuple[str, ...] = ("trap cl", "trap acr", "levator scap")
     tie_sides: bool = False
     settings: Mapping[str, Mapping] = field(default_factory=dict)
+    postures: Mapping[str, object] | None = None
+    posture_angle: float = 0.0
+    force_length: str = "relative"
 
     @property
     def K(self) -> int:
@@ -706,3 +715,208 @@ class ShoulderGirdle(Effect):
             inst = _add_rows(inst, row[None, :], np.zeros((1, inst.JT.shape[1])), np.full((1, 3), np.nan),
                              np.zeros((1, 3)), [f"scapular anchor {side}"])
         return inst
+
+
+#: Head-neck flexion angle (deg, + flexion) of each shipped sagittal posture table (docs/postures.md).
+POSTURE_ANGLES = {"ext20": -20.0, "neutral": 0.0, "flex20": 20.0}
+
+
+class SubmaximalEffort(Effect):
+    """Submaximal effort that differs by direction (pain, fear of pain, unfamiliarity with the direction): the
+    participant activates every muscle up to ``effort(n) < 1`` of its maximum in a test whose push has unit force
+    direction ``n`` (skull frame), so the measured maximum is ``effort(n)`` times the model's (exactly: with no
+    activation floor the max-wrench LP is homogeneous in the upper bounds). The field is one smooth, low-order
+    function of the push direction (a dipole), ``effort(n) = 1 - |b| - b . n``, three parameters ``b`` (planar
+    models: two, in the sagittal plane), norm capped at ``(1 - min_effort) / 2``: effort lies in
+    ``[min_effort, 1]``, is 1 in the push direction opposite to ``b`` and lowest along ``b``. A constant effort is
+    absorbed by the free strengths exactly (the forces scale with them), so only the directional part can be
+    seen; a dipole cannot absorb a misfit that varies faster over the directions than a cosine.
+
+    Bound: voluntary activation in maximal isometric efforts of healthy adults is about 85-100% (twitch
+    interpolation; Gandevia 2001 Physiol Rev 81:1725), lower with pain or fear of pain; the set-up has no check
+    of effort (Appendix A). ``min_effort`` 0.6 is a generous floor (a modelling choice)."""
+
+    name = "submaximal_effort"
+    family = "effort"
+    order = 65
+    description = "effort 1 - |b| - b.n by push direction n (smooth dipole field, effort in [min_effort, 1])"
+    source = ("Appendix A (maximal voluntary efforts, no check of effort); Gandevia 2001 Physiol Rev 81:1725 "
+              "(voluntary activation of healthy adults 85-100%)")
+    defaults = {"min_effort": 0.6}
+
+    def _bmax(self) -> float:
+        e = float(self.s["min_effort"])
+        if not 0.0 < e < 1.0:
+            raise ValueError(f"gap.effect_settings.submaximal_effort.min_effort: in (0, 1), not {e}")
+        return (1.0 - e) / 2.0
+
+    def params(self):
+        m = self._bmax()
+        names = (("b_anterior", "b_superior") if self.ctx.model.planar
+                 else ("b_anterior", "b_superior", "b_lateral"))
+        return tuple(Param(n, -m, m, 0.0, "", f"dipole coefficient on the push direction's {n[2:]} component")
+                     for n in names)
+
+    def grid(self, n: int) -> list[np.ndarray]:
+        """Neutral, then the points along each coefficient axis (``n`` values per axis from lower to upper bound,
+        neutral left out): a dipole along each skull axis; oblique dipoles are reached by the refinement."""
+        ps = self.params()
+        pts = [self.neutral]
+        for a, p in enumerate(ps):
+            for v in np.linspace(p.lo, p.hi, max(2, int(n))):
+                if abs(v - p.neutral) > 1e-12:
+                    t = self.neutral.copy()
+                    t[a] = v
+                    pts.append(t)
+        span = np.maximum(self.upper - self.lower, 1e-12)
+        pts[1:] = sorted(pts[1:], key=lambda t: (float(np.linalg.norm((t - self.neutral) / span)), tuple(t)))
+        return pts
+
+    def effort(self, N: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """Effort (K,) of tests with unit force directions ``N`` (K x 3) at parameters ``theta``."""
+        b = np.zeros(3)
+        b[:len(theta)] = np.asarray(theta, float)
+        nb = float(np.linalg.norm(b))
+        m = self._bmax()
+        if nb > m:
+            b, nb = b * (m / nb), m
+        Nh = N / np.linalg.norm(N, axis=1, keepdims=True)
+        return np.clip(1.0 - nb - Nh @ b, 1.0 - 2.0 * m, 1.0)
+
+    def apply(self, inst, theta):
+        e = self.effort(inst.N, theta)
+        ub = inst.ub.copy()
+        mc = inst.muscle_cols
+        ub[:, mc] = np.minimum(ub[:, mc], e[:, None])
+        return replace(inst, ub=np.maximum(ub, inst.lb))
+
+
+class PostureDrift(Effect):
+    """The head-neck posture drifts from the set posture during the push (the head is strapped to the pads, the
+    torso to the chair, but the neck between them is free; Appendix A): every test is made ``drift`` degrees
+    flexed (+) or extended (-) from the context's posture (neutral unless ``ctx.posture_angle``). The model in
+    the drifted posture comes from the shipped posture tables (``data/model/postures``: neutral, flex20, ext20;
+    docs/postures.md): the element moment arms, joint centres and axes and active force-length factors are
+    interpolated linearly in the flexion angle between the two nearest tables (beyond +-20 deg: extrapolated
+    along the last segment), joint axes renormalised, ``J^T`` rebuilt from them, then reduced with the fitted
+    model's grouping (Sec. 4.2.1.3) exactly as :func:`neckstrength.postures.model.reduce_in_posture` does; the
+    group strengths follow the force-length factors (``ctx.force_length``). The test points and push directions
+    stay fixed to the skull (the pads move with the head). Combined with ``kinematic`` or ``finer_groups``, their
+    added rows and columns keep the neutral moment arms.
+
+    Bound: +-12 deg (``max_drift_deg``), a modelling choice: the drift is limited by the compliance of the head
+    pads and torso straps, which the thesis does not measure; 12 deg keeps the drifted posture well inside the
+    tables' +-20 deg, where the interpolation is between computed postures."""
+
+    name = "posture_drift"
+    family = "posture"
+    order = 5
+    description = "head-neck flexion (+) / extension (-) drift during the push (shipped posture tables)"
+    source = ("Appendix A (head strapped to the pads, neck free); data/model/postures (docs/postures.md; "
+              "Sec. 6.6.2 / 7.1.2.2)")
+    defaults = {"max_drift_deg": 12.0}
+
+    def params(self):
+        m = float(self.s["max_drift_deg"])
+        return (Param("drift_deg", -m, m, 0.0, "deg", "flexion (+) / extension (-) of the head-neck posture"),)
+
+    def _tables(self) -> list[tuple[float, object]]:
+        tab = dict(self.ctx.postures or {})
+        return sorted((POSTURE_ANGLES[n], t) for n, t in tab.items() if n in POSTURE_ANGLES)
+
+    def applies(self):
+        tabs = self._tables()
+        return len(tabs) >= 2 and any(a == 0.0 for a, _ in tabs)
+
+    def state(self, angle: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Element moment arms (21 x 96), strength factors (96), joint centres and unit axes (21 x 3) at flexion
+        ``angle`` (deg): linear in the angle between the nearest two tables."""
+        from neckstrength.postures.tables import PostureTable  # noqa: F401  (the tables' type)
+
+        tabs = self._tables()
+        angles = np.array([a for a, _ in tabs])
+        i = int(np.clip(np.searchsorted(angles, angle) - 1, 0, len(angles) - 2))
+        (a0, t0), (a1, t1) = tabs[i], tabs[i + 1]
+        w = (angle - a0) / (a1 - a0)
+        fl = str(self.ctx.force_length)
+        R = (1 - w) * t0.moment_arms + w * t1.moment_arms
+        fac = np.maximum((1 - w) * t0.strength_factor(fl) + w * t1.strength_factor(fl), 0.0)
+        c = (1 - w) * t0.centres + w * t1.centres
+        ax = (1 - w) * t0.axes + w * t1.axes
+        ax = ax / np.linalg.norm(ax, axis=1, keepdims=True)
+        return R, fac, c, ax
+
+    def apply(self, inst, theta):
+        from neckstrength.model.reduction import reduce_strengths_and_arms
+
+        model, full = self.ctx.model, self.ctx.full
+        m = model.m
+        rows_idx = [COORDINATES.index(c) for c in model.coordinates]
+        if inst.R.shape[1] != m or inst.rows != tuple(model.coordinates):
+            raise ValueError("posture_drift must be applied first (to the fitted model's rows and columns)")
+        a0 = float(self.ctx.posture_angle)
+        _, fac0, _, _ = self.state(a0)
+        R, fac, c, ax = self.state(a0 + float(theta[0]))
+        f_neutral = np.where(fac0 > 0, full.strengths / np.where(fac0 > 0, fac0, 1.0), full.strengths)
+        f_g0, _ = reduce_strengths_and_arms(R[rows_idx], f_neutral * fac0, model.S)
+        f_el = f_neutral * fac
+        f_g, R_g = reduce_strengths_and_arms(R[rows_idx], f_el, model.S)
+        ratio = np.where(f_g0 > 0, f_g / np.where(f_g0 > 0, f_g0, 1.0), 0.0)
+        A = inst.A.copy()
+        A[:m] = ratio[:, None] * A[:m]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            elem = np.where(f_g[None, :] > 0, f_el[:, None] * model.S / np.where(f_g > 0, f_g, 1.0)[None, :], 0.0)
+        return replace(inst, R=R_g, A=A, a0=inst.a0 * np.r_[ratio, np.ones(len(inst.a0) - m)], elem=elem,
+                       JT=_jt_rows(c[rows_idx], ax[rows_idx], inst.planar), row_centre=c[rows_idx],
+                       row_axis=ax[rows_idx])
+
+
+class AnthropometricScaling(Effect):
+    """Head and neck size: the model's geometry is one (scaled) adult's (Vasavada et al. 1998 geometry behind the
+    OpenSim model, docs/model_derivation.md), the participant's head and neck are their own. Scaling the head
+    (test points, C0-C1 in the skull frame) and the neck (joint centres, moment arms) by one common factor leaves
+    every predicted force unchanged (torques and lever arms scale alike; tested), and a common factor on the
+    moment arms alone is absorbed by the free strengths, so one parameter is left: the size of the neck relative
+    to the head, ``1 + s``. The joint centres move away from C0-C1 by ``1 + s`` (``c_j -> c_0 + (1 + s)(c_j -
+    c_0)``) and the muscles' moment arms scale by ``1 + s``, the test points and C0-C1 stay where they are in the
+    skull frame (equivalently: the head, test points and C0-C1 offset, scaled by ``1 / (1 + s)``).
+
+    Bound +-15% (``max_scale``): in height-matched men and women, neck dimensions differ by 9-16% and head
+    dimensions by 3-6% (Vasavada, Danaraj and Siegmund 2008 J Biomech 41:114), i.e. the neck-to-head ratio by
+    about 6-10% between the sexes, plus individual spread (head length SD about 4% of its mean, Pheasant and
+    Haslegrave, Bodyspace, 3rd ed., 2006)."""
+
+    name = "anthropometric_scaling"
+    family = "anthropometry"
+    order = 72
+    description = "neck size relative to the head: joint spacing below C0-C1 and moment arms x (1 + s)"
+    source = ("Vasavada, Danaraj and Siegmund 2008 J Biomech 41:114 (head vs neck dimensions); Appendix A (C0-C1 "
+              "from the head pad)")
+    defaults = {"max_scale": 0.15}
+
+    def params(self):
+        m = float(self.s["max_scale"])
+        return (Param("neck_scale", -m, m, 0.0, "", "relative size of the neck (joint spacing, moment arms) "
+                                                      "against the head"),)
+
+    def _c0(self, inst: Instance) -> np.ndarray:
+        top = [i for i, r in enumerate(inst.rows) if r.startswith("C0-C1_")]
+        if not top:
+            raise ValueError("anthropometric_scaling: the model has no C0-C1 joint")
+        return inst.row_centre[top[0]]
+
+    def applies(self):
+        return any(c.startswith("C0-C1_") for c in self.ctx.model.coordinates) and len(
+            {c.split("_")[0] for c in self.ctx.model.coordinates}) >= 2
+
+    def apply(self, inst, theta):
+        k = 1.0 + float(theta[0])
+        joint = ~np.isnan(inst.row_centre[:, 0])
+        c0 = self._c0(inst).copy()
+        centre = inst.row_centre.copy()
+        centre[joint] = c0 + k * (centre[joint] - c0)
+        JT = inst.JT.copy()
+        JT[joint] = _jt_rows(centre[joint], inst.row_axis[joint], inst.planar)
+        R = inst.R.copy()
+        R[np.ix_(joint, inst.muscle_cols)] *= k
+        return replace(inst, R=R, JT=JT, row_centre=centre)

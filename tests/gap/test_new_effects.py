@@ -1,0 +1,109 @@
+"""The issue-32 candidate effects (submaximal_effort, posture_drift, anthropometric_scaling): the base model at
+their neutral parameters, bounds, physics, and a fit that finds an injected effect in simulated data."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from neckstrength.estimation.parameters import free_parameters
+from neckstrength.gap.discriminate import fit_candidate
+from neckstrength.gap.effects import EFFECTS, _jt_rows, base_instance, compose
+from neckstrength.gap.fit import Simulator
+
+NEW = ("submaximal_effort", "posture_drift", "anthropometric_scaling")
+
+
+def _forces(ctx, inst, F=None):
+    F = ctx.model.strengths[None] if F is None else F
+    return Simulator(ctx, inst).forces(F)[0]
+
+
+@pytest.mark.parametrize("name", NEW)
+def test_neutral_is_the_base_model(ctx_s3, name):
+    """``apply`` at the neutral parameters (the formula itself, not compose's shortcut) gives the base forces,
+    and a small step away changes them."""
+    e = EFFECTS[name](ctx_s3)
+    assert e.applies()
+    base = base_instance(ctx_s3)
+    f0 = _forces(ctx_s3, base)
+    np.testing.assert_allclose(_forces(ctx_s3, e.apply(base, e.neutral)), f0, rtol=1e-9)
+    th = e.neutral + 0.5 * (e.upper - e.neutral)
+    assert np.max(np.abs(_forces(ctx_s3, e.apply(base, th)) / f0 - 1)) > 0.01
+
+
+@pytest.mark.parametrize("name", NEW)
+def test_bounds_enforced(ctx_s3, name):
+    e = EFFECTS[name](ctx_s3)
+    with pytest.raises(ValueError, match="outside bounds"):
+        compose(ctx_s3, [e], [e.upper + 0.01 * (e.upper - e.lower)])
+    with pytest.raises(ValueError, match="outside bounds"):
+        compose(ctx_s3, [e], [e.lower - 0.01 * (e.upper - e.lower)])
+    assert all(p.lo < p.neutral < p.hi for p in e.params())
+
+
+def test_effort_stays_within_its_range(ctx_s3):
+    """Every corner of the parameter box (norm above the cap) keeps the effort within [min_effort, 1], and the
+    forces scale by exactly the effort (no activation floor: the LP is homogeneous in the upper bounds)."""
+    e = EFFECTS["submaximal_effort"](ctx_s3)
+    base = base_instance(ctx_s3)
+    f0 = _forces(ctx_s3, base)
+    for corner in ([1, 1, 1], [-1, 1, -1], [1, -1, 0]):
+        th = np.array(corner, float) * e.upper
+        eff = e.effort(base.N, th)
+        assert eff.min() >= 0.6 - 1e-12 and eff.max() <= 1 + 1e-12
+        np.testing.assert_allclose(_forces(ctx_s3, compose(ctx_s3, [e], [th])), eff * f0, rtol=1e-6)
+    with pytest.raises(ValueError, match="min_effort"):
+        EFFECTS["submaximal_effort"](ctx_s3, min_effort=1.2).params()
+
+
+def test_posture_drift_reaches_the_tables(ctx_s3):
+    """At +20 deg (the flex20 table itself) the drifted model equals the posture model of the tables."""
+    from neckstrength.postures.model import build_posture_set
+
+    e = EFFECTS["posture_drift"](ctx_s3, max_drift_deg=20.0)
+    ps = build_posture_set(ctx_s3.full, ctx_s3.model, dict(ctx_s3.postures), ["neutral", "flex20"])
+    F = ctx_s3.model.strengths[None]
+    U = base_instance(ctx_s3).U6[:, 0]
+    w, _, _ = ps.wrenches(F, U, ["flex20"] * len(U))
+    f_tab = w[0] / ctx_s3.directions["force_scale"].to_numpy(float)
+    np.testing.assert_allclose(_forces(ctx_s3, compose(ctx_s3, [e], [np.array([20.0])])), f_tab, rtol=1e-5)
+    assert EFFECTS["posture_drift"](replace(ctx_s3, postures=None)).applies() is False
+
+
+def test_uniform_scaling_changes_nothing(ctx_s3):
+    """Why anthropometric_scaling has one parameter: the head (test points) and the neck (joint centres, moment
+    arms) scaled by one common factor predict the same forces."""
+    base = base_instance(ctx_s3)
+    k = 1.12
+    joint = ~np.isnan(base.row_centre[:, 0])
+    centre = base.row_centre.copy()
+    centre[joint] *= k
+    JT = base.JT.copy()
+    JT[joint] = _jt_rows(centre[joint], base.row_axis[joint], base.planar)
+    P = base.P * k
+    N = base.N / np.linalg.norm(base.N, axis=1, keepdims=True)
+    W = np.hstack([np.cross(P, N), N])
+    s = np.linalg.norm(W, axis=1)
+    scaled = replace(base, R=base.R * k, JT=JT, row_centre=centre, P=P, U6=(W / s[:, None])[:, None, :],
+                     fmul=(1 / s)[:, None])
+    np.testing.assert_allclose(_forces(ctx_s3, scaled), _forces(ctx_s3, base), rtol=1e-7)
+
+
+@pytest.mark.parametrize("name", NEW)
+def test_fit_finds_an_injected_effect(ctx_s3, name):
+    """Forces simulated with the effect at its far grid point (strengths off baseline, 1% noise; seed 32): fitting
+    the strengths at every grid point, the injected one fits best and the base model (neutral) clearly worse."""
+    rng = np.random.default_rng(32)
+    e = EFFECTS[name](ctx_s3)
+    pidx, _ = free_parameters(ctx_s3.model, ctx_s3.tie_sides)
+    p = int(pidx.max()) + 1
+    phi = np.array([np.log(ctx_s3.model.strengths[pidx == q].mean()) for q in range(p)]) + rng.normal(0, 0.2, p)
+    grid = e.grid(5)
+    truth = grid[-1]
+    sim = Simulator(ctx_s3, compose(ctx_s3, [e], [truth]))
+    T = sim.forces(sim.muscles(phi[None]))[0] * np.exp(rng.normal(0, 0.01, ctx_s3.K))
+    loss = [fit_candidate(ctx_s3, T, "none" if e.is_neutral(g) else name, {name: list(g)})[1] for g in grid]
+    best = int(np.argmin(loss))
+    np.testing.assert_allclose(grid[best], truth)
+    assert loss[0] > 2 * loss[best]
