@@ -255,3 +255,94 @@ def test_forces_the_model_cannot_fit_are_not_decided(p2m7):
         out[name] = (dec.decision(), dec.misfit_rms())
     assert out["bad"][0] == "model misfit" and out["bad"][1] > 3 * s.noise
     assert out["good"][0] != "model misfit" and out["good"][1] < 3 * s.noise
+
+
+def _synthetic_runs(n: int = 400, slope: float = 0.6, intercept: float = 0.8, seed: int = 0) -> pd.DataFrame:
+    """Runs whose deficit status follows a known logistic law of log BF (made here, not by the decision)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for i in range(n):
+        kind = "deficit" if i % 4 in (0, 3) else "normal"        # half and half, in both parity folds
+        for t in (5, 10, 15, 25):
+            rows.append({"participant": i, "protocol": "forces", "t": t, "kind": kind})
+    df = pd.DataFrame(rows)
+    # draw log BF given the class so that logit P(deficit | x) = slope x + intercept at a 50% share:
+    # x | class ~ N(+-m, s^2) gives logit = 2 m x / s^2; add the intercept by shifting both means
+    s = 1.5
+    m = slope * s * s / 2
+    shift = -intercept / slope
+    sign = np.where(df["kind"] == "deficit", 1.0, -1.0)
+    df["log_bf"] = sign * m + shift + s * rng.standard_normal(len(df))
+    return df
+
+
+def test_recalibration_recovers_a_known_logistic_law_and_checks_itself_held_out():
+    from neckstrength.sequential.decision import DecisionCalibration
+    from neckstrength.sequential.decision_study import recalibrate
+
+    runs = _synthetic_runs()
+    cal, rel, rule = recalibrate(runs, DecisionSettings(), "s3m24", 25, (5, 10, 15, 25))
+    # the law is linear: the fitted map's log LR at a few points within 0.35 of the truth
+    for x in (-3.0, -1.0, 0.0, 1.0, 3.0):
+        assert cal.log_lr(x) == pytest.approx(0.6 * x + 0.8, abs=0.35)
+    assert cal.slope > 0 and cal.slope + cal.bend / 2 > 0                 # monotone
+    assert cal.cohort_share == pytest.approx(0.5) and cal.n_patients == 400
+    assert rel["within_ci"].sum() >= len(rel) - 1 and str(int(rel["within_ci"].sum())) in cal.check
+    assert set(rule["t"]) == {5, 10, 15, 25}
+    assert rule["threshold_fa0.05_false_alarm"].max() <= 0.12           # held out: near the 5% it was set for
+    back = DecisionCalibration.from_frame(cal.to_frame(), source="x")
+    assert back.log_lr(1.3) == pytest.approx(cal.log_lr(1.3)) and back.group == cal.group
+    with pytest.raises(ValueError, match="columns"):
+        DecisionCalibration.from_frame(cal.to_frame().drop(columns=["slope"]))
+
+
+def test_recalibrated_probability_is_used_only_where_it_holds(p2m7):
+    """A recalibration measured for other settings is not applied (the model's P, labelled heuristic); one that
+    holds changes P as its map says; EMG entries switch it off, and undo switches it back on."""
+    from neckstrength.sequential.decision import DecisionCalibration
+
+    model, data = p2m7
+    f0 = model.strengths
+    base = DecisionSettings(group=("TS-E",), n_candidates=300, n_moves=2)
+    cal = DecisionCalibration(model=model.name, group=("TS-E",), deficit_range=(0.2, 0.6), population_sd=0.3,
+                              noise=0.05, n_candidates=300, sampler="resample_move",
+                              n_directions=len(data.directions), cohort_share=0.5, n_patients=10, slope=0.5,
+                              intercept=1.0, bend=0.0, check="test")
+    other = DecisionCalibration(**{**cal.__dict__, "model": "s3m24"})
+    from dataclasses import replace
+
+    w, _, _ = solve(model, f0[None], data.U)
+    forces = w[0] / data.force_scale
+    dec = DeficitDecision(model, data.directions, data.U, data.force_scale, f0, replace(base, calibration=cal),
+                          JointSettings(), np.random.default_rng(4))
+    off = DeficitDecision(model, data.directions, data.U, data.force_scale, f0, replace(base, calibration=other),
+                          JointSettings(), np.random.default_rng(4))
+    for d in data.directions[:3]:
+        dec.push(d, forces[data.directions.index(d)])
+        off.push(d, forces[data.directions.index(d)])
+    assert dec.calibrated and not off.calibrated
+    assert "measured on s3m24" in off.calibration_note() and "heuristic" in off.p_label()
+    assert off.p_deficit() == off.p_model()
+    x = dec.log_bf()
+    assert dec.p_deficit() == pytest.approx(1 / (1 + math.exp(-(0.5 * x + 1.0))))
+    assert dec.p_model() == pytest.approx(1 / (1 + math.exp(-x)))
+    assert "recalibrated" in dec.p_label() and dec.history[-1]["p_calibrated"]
+    n = len(model.muscle_names)
+    dec.push(data.directions[3], forces[3], (np.zeros(n), np.ones(n)))
+    assert not dec.calibrated and "EMG" in dec.calibration_note()
+    dec.undo()
+    assert dec.calibrated
+
+
+def test_shipped_recalibration_loads_and_holds_for_the_shipped_s3m24_settings():
+    from neckstrength.config import decision_settings, load_config
+    from neckstrength.io import DataValidationError
+
+    cfg = load_config(ROOT / "config" / "config.yaml")
+    s = decision_settings(cfg)
+    assert s.calibration is not None and s.calibration.model == "s3m24"
+    assert s.calibration.applies("s3m24", s, 25) == ""
+    assert "noise" in s.calibration.applies("s3m24", decision_settings(cfg, noise=0.08), 25)
+    assert "7 of 7" in s.calibration.check or "of 7" in s.calibration.check
+    with pytest.raises(DataValidationError, match="calibration"):
+        decision_settings({"clinician": {"decision": {"calibration": "no/such/file.csv"}}})

@@ -50,6 +50,13 @@ rule clinician_decision:
         runs="results/clinician/{named}/decision_runs.csv",
         per_run="results/clinician/{named}/decision_per_run.csv",
         rule_grid="results/clinician/{named}/decision_rule_grid.csv",
+        calibration="results/clinician/{named}/decision_calibration.csv",
+        recalibrated=report(
+            "results/clinician/{named}/decision_recalibrated.csv",
+            caption="../report/clinician_decision.rst",
+            category="Clinician loop",
+            labels={"model": "{named}", "table": "deficit decision: recalibrated P, held out"},
+        ),
         roc=report(
             "results/clinician/{named}/decision_roc.csv",
             caption="../report/clinician_decision.rst",

@@ -193,13 +193,14 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
     from neckstrength.config import decision_settings, decision_study_settings
     from neckstrength.gap.forked import fork_map
     from neckstrength.sequential.decision_plots import fig_decision_study
-    from neckstrength.sequential.decision_study import reliability_table, roc_table, rule_grid, \
+    from neckstrength.sequential.decision_study import recalibrate, reliability_table, roc_table, rule_grid, \
         run_decision_study, sequential_table
 
     model = model_from_config(full_model_from_config(config), config, model_name)
     d, U = model_directions_table(model, load_directions(directions_csv))
     study, n_cand = decision_study_settings(config, model_name)
-    decision = decision_settings(config, n_candidates=n_cand)
+    # the study measures the model's own Bayes factor: no recalibration (it is made here, from these runs)
+    decision = decision_settings(config, n_candidates=n_cand, calibration=None)
     joint = joint_settings(config)
     seed = int(config["seed"])
     f0 = model.strengths
@@ -261,6 +262,28 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
                                                   f"({study.cohort.n_deficit / n:.0%}; prevalence setting "
                                                   f"{decision.prevalence:.0%}); Jeffreys 95% intervals"],
                      float_format="%.4g")
+    if "forces" in study.protocols:
+        cal, rel_cal, rule_cal = recalibrate(runs[runs["protocol"] == "forces"], decision, model_name, len(dirs), cps,
+                                             false_alarm=study.false_alarm,
+                                             source=f"decision study of {model_name}, seed {seed}")
+        atomic_write_csv(cal.to_frame(), Path(out_roc).with_name("decision_calibration.csv"),
+                         hdr + ["the recalibration of the Bayes factor fitted on these runs (forces only; every t >= "
+                                f"{decision.min_tests}); to use it in sessions and estimates, copy this file to "
+                                "data/calibration/ and point clinician.decision.calibration at it"],
+                         float_format="%.8g")
+        atomic_write_csv(pd.concat([rel_cal, rule_cal], ignore_index=True),
+                         Path(out_roc).with_name("decision_recalibrated.csv"),
+                         hdr + ["held out (2 folds by participant parity, each fold scored with the map fitted on the "
+                                "other): reliability of the recalibrated P(deficit) (Jeffreys 95% intervals), and per "
+                                f"t the recalibrated rule P >= {decision.p_decide} and a log BF threshold chosen on the "
+                                f"other fold's normals for false alarms <= {study.false_alarm} (Wilson 95%)",
+                                f"map: {cal}"], float_format="%.4g")
+        rel = pd.concat([rel, rel_cal], ignore_index=True)
+        print(f"recalibration: {cal.label()}\n{rule_cal.to_string(index=False)}", flush=True)
+    else:
+        for name in ("decision_calibration.csv", "decision_recalibrated.csv"):
+            atomic_write_csv(pd.DataFrame({"note": ["no forces-only protocol in this study: nothing recalibrated"]}),
+                             Path(out_roc).with_name(name), hdr)
     fig_decision_study(runs, rel, cps, decision.p_decide, out_fig,
                        f"deficit decision on {model_name}-simulated patients: {study.cohort.n_deficit} deficit, "
                        f"{study.cohort.n_normal} normal; noise {study.cohort.noise:.0%}; seed {seed}")

@@ -67,6 +67,9 @@ class DecisionSettings:
     max_resamples: int = 50                     # tempering steps per test
     sampler: str = "resample_move"              # or "fresh_draws": JointPosterior's resampling (for comparison only)
     n_ybins: int = 128                          # predictive histogram of decision_eig
+    calibration: "DecisionCalibration | None" = None   # recalibration of the Bayes factor measured on simulated
+    #                                             patients (config clinician.decision.calibration, a file); None: the
+    #                                             model's P(deficit), labelled heuristic
 
     def __post_init__(self):
         lo, hi = self.deficit_range
@@ -101,6 +104,96 @@ class DecisionSettings:
         keep = set(self.group)
         return np.array([j for j, n in enumerate(muscle_names)
                          if n in keep or (n.endswith(("-R", "-L")) and n[:-2] in keep)], dtype=int)
+
+
+@dataclass(frozen=True)
+class DecisionCalibration:
+    """A recalibration of the Bayes factor measured on simulated patients (Platt scaling, Platt 1999, with a bend).
+
+    The decision study (:func:`neckstrength.sequential.decision_study.recalibrate`) fits, on a cohort whose truths are
+    made apart from the priors, ``logit P(deficit | x) = slope x + intercept + bend tanh(x / 2)`` with ``x = log BF``,
+    monotone in ``x``, at the cohort's share of deficits ``cohort_share``; the calibrated likelihood ratio is then
+    ``log LR = slope x + intercept + bend tanh(x / 2) - logit(cohort_share)``, and for a clinician's prevalence
+    ``pi``
+
+        P(deficit) = 1 / (1 + exp(-(log LR + logit(pi)))).
+
+    It holds for the settings it was measured with (model, group, deficit range, population sd, noise, candidates,
+    sampler, number of test directions, forces only) and for patients like the cohort's (its population, its 5%
+    noise): :meth:`applies` says when it does not, and the decision then reports the model's own P, labelled
+    heuristic. ``check`` names the held-out check (cross-fitted reliability) and its result.
+    """
+
+    model: str
+    group: tuple[str, ...]
+    deficit_range: tuple[float, float]
+    population_sd: float
+    noise: float
+    n_candidates: int
+    sampler: str
+    n_directions: int
+    cohort_share: float
+    n_patients: int
+    slope: float
+    intercept: float
+    bend: float
+    check: str
+    source: str = ""
+
+    def log_lr(self, log_bf: float) -> float:
+        s = self.cohort_share
+        return self.slope * log_bf + self.intercept + self.bend * math.tanh(log_bf / 2) - math.log(s / (1 - s))
+
+    def d_log_lr(self, log_bf: float) -> float:
+        """d log LR / d log BF (for the delta-method Monte Carlo error)."""
+        return self.slope + self.bend / 2 / math.cosh(log_bf / 2) ** 2
+
+    def applies(self, model_name: str, settings: "DecisionSettings", n_directions: int,
+                with_emg: bool = False) -> str:
+        """'' when this recalibration holds for a decision with these settings, else the reason it does not."""
+        diff = []
+        if model_name != self.model:
+            diff.append(f"model {model_name} (measured on {self.model})")
+        for name in ("group", "deficit_range", "population_sd", "noise", "n_candidates", "sampler"):
+            a, b = getattr(settings, name), getattr(self, name)
+            if (tuple(a) != tuple(b)) if isinstance(a, tuple) else not (a == b or (isinstance(a, float)
+                                                                                  and math.isclose(a, b))):
+                diff.append(f"{name} {a} (measured at {b})")
+        if n_directions != self.n_directions:
+            diff.append(f"{n_directions} test directions (measured with {self.n_directions})")
+        if with_emg:
+            diff.append("EMG entries (measured on forces only)")
+        return "; ".join(diff)
+
+    def label(self) -> str:
+        return (f"recalibrated on {self.n_patients} simulated patients ({self.model}, forces only, noise "
+                f"{self.noise:.0%}); check: {self.check}")
+
+    def to_frame(self) -> pd.DataFrame:
+        from dataclasses import asdict
+
+        d = asdict(self)
+        d["group"] = "+".join(self.group)
+        d["deficit_range"] = f"{self.deficit_range[0]:g}-{self.deficit_range[1]:g}"
+        return pd.DataFrame([d])
+
+    @classmethod
+    def from_frame(cls, df: pd.DataFrame, source: str = "") -> "DecisionCalibration":
+        from dataclasses import fields
+
+        need = [f.name for f in fields(cls) if f.name != "source"]
+        miss = [c for c in need if c not in df.columns]
+        if miss or len(df) != 1:
+            raise ValueError(f"{source or 'decision calibration'}: needs one row with columns {need}; "
+                             f"missing {miss}, rows {len(df)}")
+        r = df.iloc[0]
+        lo, hi = (float(x) for x in str(r["deficit_range"]).split("-"))
+        return cls(model=str(r["model"]), group=tuple(str(r["group"]).split("+")), deficit_range=(lo, hi),
+                   population_sd=float(r["population_sd"]), noise=float(r["noise"]),
+                   n_candidates=int(r["n_candidates"]), sampler=str(r["sampler"]),
+                   n_directions=int(r["n_directions"]), cohort_share=float(r["cohort_share"]),
+                   n_patients=int(r["n_patients"]), slope=float(r["slope"]), intercept=float(r["intercept"]),
+                   bend=float(r["bend"]), check=str(r["check"]), source=source or str(r.get("source", "")))
 
 
 class HypothesisPrior:
@@ -216,6 +309,7 @@ class DeficitDecision:
         self.posts = dict(zip(("normal", "deficit"), self._both(lambda j: build(*j), jobs)))
         self.directions = list(directions)
         self._snaps: list[dict] = []
+        self._emg: list[bool] = []                  # per test: EMG bounds given (the recalibration is forces-only)
         self.history: list[dict] = [self.summary()]
 
     def _both(self, fn, items: list) -> list:
@@ -244,15 +338,46 @@ class DeficitDecision:
         """Monte Carlo error (1 se) of :meth:`log_bf` (heuristic, see the module docstring)."""
         return math.sqrt(self.posts["deficit"].log_evidence_var + self.posts["normal"].log_evidence_var)
 
-    def p_deficit(self, prevalence: float | None = None) -> float:
+    def calibration_note(self) -> str:
+        """Why the settings' recalibration does not hold for this decision ('' when it does; 'none' when the
+        settings carry none)."""
+        cal = self.settings.calibration
+        if cal is None:
+            return "none"
+        return cal.applies(self.model.name, self.settings, len(self.directions), with_emg=any(self._emg))
+
+    @property
+    def calibrated(self) -> bool:
+        """True when :meth:`p_deficit` is the recalibrated probability (see :class:`DecisionCalibration`)."""
+        return self.calibration_note() == ""
+
+    def p_label(self) -> str:
+        """What the printed P(deficit) is: recalibrated (with its check) or the model's own, heuristic."""
+        if self.calibrated:
+            return self.settings.calibration.label()
+        note = self.calibration_note()
+        why = "no recalibration for these settings" if note == "none" else f"recalibration does not hold: {note}"
+        return f"heuristic: the model's probability, not calibrated ({why})"
+
+    def p_model(self, prevalence: float | None = None) -> float:
+        """P(deficit) from the model's Bayes factor as it stands (conservative on the decision study's cohort)."""
         pi = self.settings.prevalence if prevalence is None else prevalence
         x = self.log_bf() + math.log(pi) - math.log1p(-pi)
+        return float(1.0 / (1.0 + math.exp(-x))) if x > -700 else 0.0
+
+    def p_deficit(self, prevalence: float | None = None) -> float:
+        """P(deficit): recalibrated when the settings' :class:`DecisionCalibration` holds, else :meth:`p_model`."""
+        if not self.calibrated:
+            return self.p_model(prevalence)
+        pi = self.settings.prevalence if prevalence is None else prevalence
+        x = self.settings.calibration.log_lr(self.log_bf()) + math.log(pi) - math.log1p(-pi)
         return float(1.0 / (1.0 + math.exp(-x))) if x > -700 else 0.0
 
     def p_deficit_se(self) -> float:
         """Monte Carlo error of :meth:`p_deficit` by the delta method from :meth:`log_bf_se` (heuristic)."""
         p = self.p_deficit()
-        return float(p * (1 - p) * self.log_bf_se())
+        slope = self.settings.calibration.d_log_lr(self.log_bf()) if self.calibrated else 1.0
+        return float(p * (1 - p) * slope * self.log_bf_se())
 
     def misfit_rms(self) -> float:
         """The best candidate's RMS relative force error over the tests so far, under either hypothesis: how well
@@ -285,7 +410,7 @@ class DeficitDecision:
     def summary(self) -> dict:
         return {"t": len(self.tested), "direction": self.tested[-1] if self.tested else "",
                 "log_bf": self.log_bf(), "log_bf_se": self.log_bf_se(), "p_deficit": self.p_deficit(),
-                "p_deficit_se": self.p_deficit_se(), "decision": self.decision(), "misfit_rms": self.misfit_rms(),
+                "p_deficit_se": self.p_deficit_se(), "p_model": self.p_model(), "p_calibrated": self.calibrated, "decision": self.decision(), "misfit_rms": self.misfit_rms(),
                 "ess_normal": self.posts["normal"].ess_share(), "ess_deficit": self.posts["deficit"].ess_share(),
                 "ratio_mean_deficit": self.group_ratio_mean("deficit"),
                 "ratio_mean_normal": self.group_ratio_mean("normal")}
@@ -317,6 +442,7 @@ class DeficitDecision:
             for h, p in self.posts.items():
                 p.restore(s[h])
             raise
+        self._emg.append(activations is not None)
         self.history.append(self.summary())
 
     def undo(self) -> None:
@@ -325,6 +451,7 @@ class DeficitDecision:
         s = self._snaps.pop()
         for h, p in self.posts.items():
             p.restore(s[h])
+        self._emg.pop()
         self.history.pop()
 
     # -- the next test

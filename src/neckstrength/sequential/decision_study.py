@@ -244,3 +244,102 @@ def reliability_table(runs: pd.DataFrame, checkpoints: Sequence[int],
                         "mean_p_deficit": mean_p, "share_with_deficit": hits / n, "ci95_low": float(lo),
                         "ci95_high": float(hi), "within_ci": bool(lo <= mean_p <= hi)})
     return pd.DataFrame(out)
+
+
+def _platt_features(x: np.ndarray) -> np.ndarray:
+    return np.c_[x, np.ones_like(x), np.tanh(x / 2)]
+
+
+def _fit_platt(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """Maximum-likelihood ``logit P(y = 1) = a x + b + c tanh(x / 2)`` (Newton's method): Platt scaling with a bend
+    near x = 0, where the study's Bayes factor is flattest (docs/clinician.md). Monotone in ``x`` is required
+    (``a > 0`` and ``a + c / 2 > 0``); a fit that is not falls back to plain Platt scaling (``c = 0``)."""
+    def newton(X):
+        th = np.zeros(X.shape[1])
+        for _ in range(100):
+            z = np.clip(X @ th, -500, 500)
+            p = 1.0 / (1.0 + np.exp(-z))
+            # a weak ridge (0.01, against complete separation in small studies; negligible at the study's size)
+            H = (X * (p * (1 - p))[:, None]).T @ X + 0.01 * np.eye(X.shape[1])
+            step = np.linalg.solve(H, X.T @ (y - p) - 0.01 * th)
+            th = th + step
+            if np.abs(step).max() < 1e-10:
+                break
+        return th
+
+    a, b, c = newton(_platt_features(x))
+    if not (a > 0 and a + c / 2 > 0):
+        a, b = newton(_platt_features(x)[:, :2])
+        c = 0.0
+    return float(a), float(b), float(c)
+
+
+def recalibrate(runs: pd.DataFrame, decision, model_name: str, n_directions: int, checkpoints: Sequence[int],
+                protocol: str = "forces", false_alarm: float = 0.05,
+                edges: Sequence[float] = (0, 0.05, 0.2, 0.4, 0.6, 0.8, 0.95, 1.0),
+                source: str = "") -> tuple:
+    """Recalibrate the Bayes factor on the study's patients (:class:`~neckstrength.sequential.decision.
+    DecisionCalibration`: Platt scaling of log BF with a bend, pooled over every t >= the rule's ``min_tests``) and check it
+    held out: two folds by participant parity, each fold's probabilities from the map fitted on the other
+    (cross-fitting). Returns ``(calibration, reliability, rule)``:
+
+    - ``reliability``: :func:`reliability_table` of the cross-fitted probabilities at the checkpoints (the
+      calibration's check: bins whose mean P lies within the Jeffreys 95% interval of the share with the deficit;
+      the pairs (participant, t) of one participant are not independent, so the intervals are somewhat narrow);
+    - ``rule``: per checkpoint, held out, the recalibrated rule P >= p_decide (sensitivity, false alarms) and a
+      threshold on log BF chosen on the other fold's normals for a false-alarm rate <= ``false_alarm`` (its
+      sensitivity and false-alarm rate on the held-out fold: not optimistic, unlike :func:`roc_table`'s).
+    """
+    from neckstrength.sequential.decision import DecisionCalibration
+
+    t_from = min(decision.min_tests, max(checkpoints))       # a short study (CI) pools what it has
+    g = runs[(runs["protocol"] == protocol) & (runs["t"] >= t_from)].copy()
+    if g.empty:
+        raise ValueError(f"recalibrate: no runs of protocol {protocol!r} with t >= {t_from}")
+    y = (g["kind"] == "deficit").to_numpy(float)
+    x = g["log_bf"].to_numpy(float)
+    share = float(runs.drop_duplicates("participant")["kind"].eq("deficit").mean())
+    fold = (g["participant"].to_numpy() % 2).astype(int)
+    pc = np.empty(len(g))
+    for f in (0, 1):
+        th = np.array(_fit_platt(x[fold != f], y[fold != f]))
+        pc[fold == f] = 1.0 / (1.0 + np.exp(-np.clip(_platt_features(x[fold == f]) @ th, -500, 500)))
+    g["p_deficit"] = pc
+    g["protocol"] = f"{protocol} (recalibrated, cross-fitted)"
+    rel = reliability_table(g, checkpoints, edges)
+    a, b, c = _fit_platt(x, y)
+    check = (f"cross-fitted reliability (2 folds by participant, t = {', '.join(map(str, checkpoints))}): "
+             f"{int(rel['within_ci'].sum())} of {len(rel)} bins within the 95% interval")
+    cal = DecisionCalibration(model=model_name, group=tuple(decision.group),
+                              deficit_range=tuple(decision.deficit_range), population_sd=decision.population_sd,
+                              noise=decision.noise, n_candidates=decision.n_candidates, sampler=decision.sampler,
+                              n_directions=int(n_directions), cohort_share=share,
+                              n_patients=int(runs["participant"].nunique()), slope=a, intercept=b, bend=c, check=check,
+                              source=source)
+    rows = []
+    for t in checkpoints:
+        gt = g[g["t"] == t]
+        if gt.empty:
+            continue
+        yt = (gt["kind"] == "deficit").to_numpy()
+        ft = (gt["participant"].to_numpy() % 2).astype(int)
+        lb = gt["log_bf"].to_numpy(float)
+        hit_rule = gt["p_deficit"].to_numpy(float) >= decision.p_decide
+        hit_thr = np.zeros(len(gt), bool)
+        thr = []
+        for f in (0, 1):
+            neg = lb[(ft != f) & ~yt]
+            c = float(np.quantile(neg, 1 - false_alarm, method="higher")) if len(neg) else np.inf
+            thr.append(c)
+            hit_thr[ft == f] = lb[ft == f] > c
+        row = {"protocol": protocol, "t": t, "n_deficit": int(yt.sum()), "n_normal": int((~yt).sum())}
+        for name, hit in ((f"rule_p{decision.p_decide:g}", hit_rule), (f"threshold_fa{false_alarm:g}", hit_thr)):
+            ks, kf = int(hit[yt].sum()), int(hit[~yt].sum())
+            s_lo, s_hi = _wilson(ks, int(yt.sum()))
+            f_lo, f_hi = _wilson(kf, int((~yt).sum()))
+            row.update({f"{name}_sensitivity": ks / max(1, yt.sum()), f"{name}_sensitivity_ci95":
+                        f"{s_lo:.2f}-{s_hi:.2f}", f"{name}_false_alarm": kf / max(1, (~yt).sum()),
+                        f"{name}_false_alarm_ci95": f"{f_lo:.2f}-{f_hi:.2f}"})
+        row["threshold_log_bf_folds"] = " / ".join(f"{c:+.2f}" for c in thr)
+        rows.append(row)
+    return cal, rel, pd.DataFrame(rows)
