@@ -174,9 +174,11 @@ def _decision(cfg: Mapping, model_name: str, participant: str, prep: dict, out: 
            f"'estimate/{model_name}/decision'",
            "log_bf: log Bayes factor deficit : normal, log_bf_se its Monte Carlo error (heuristic); p_deficit at the "
            "prevalence; decision at p_decide; how well it decides on simulated patients: docs/clinician.md; "
-           "not checked under model misfit"]
+           "not checked under model misfit",
+           f"p_deficit: {dec.p_label()}; p_model: the model's own P (heuristic)"]
     atomic_write_csv(hist, out / "decision.csv", hdr, float_format="%.6g")
-    log(f"deficit decision: {dec.decision()} (P(deficit) {dec.p_deficit():.2f}, log Bayes factor "
+    log(f"deficit decision: {dec.decision()} (P(deficit) {dec.p_deficit():.2f}, {dec.p_label()}; log Bayes factor "
         f"{dec.log_bf():+.1f} ± {dec.log_bf_se():.1f} heuristic; {ds.label()}) in {time.time() - t0:.0f} s")
-    return {"decision": dec.decision(), "p_deficit": dec.p_deficit(), "log_bf": dec.log_bf(),
+    return {"decision": dec.decision(), "p_deficit": dec.p_deficit(), "p_deficit_label": dec.p_label(),
+            "log_bf": dec.log_bf(),
             "log_bf_se": dec.log_bf_se(), "decision_settings": ds.label(), "decision_csv": str(out / "decision.csv")}

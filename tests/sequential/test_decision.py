@@ -219,6 +219,9 @@ def test_estimate_writes_the_decision_for_a_model_with_the_group(tmp_path):
     # S003's forces: the model fits them only to about 30% RMS, far beyond 3 x the 5% noise: not decidable
     assert got["decision"] == "model misfit" and hist["misfit_rms"].iloc[-1] > 0.15 and 0 <= got["p_deficit"] <= 1
     assert got["log_bf"] == pytest.approx(hist["log_bf"].iloc[-1], rel=1e-5)
+    # CI sizes (300 candidates) differ from the recalibration's (1000): the model's own P, labelled heuristic
+    assert "heuristic" in got["p_deficit_label"] and "n_candidates 300" in got["p_deficit_label"]
+    assert (hist["p_deficit"] == hist["p_model"]).all() and not hist["p_calibrated"].any()
 
 
 def test_two_threads_give_the_same_numbers(p2m7):
