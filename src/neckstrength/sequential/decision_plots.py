@@ -47,7 +47,7 @@ def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoint
         err = np.vstack([y - g["ci95_low"].to_numpy(float), g["ci95_high"].to_numpy(float) - y])
         a.errorbar(x + 0.008 * pi, y, yerr=err, fmt="o", color=f"C{pi}", capsize=3, label=protocol)
     a.plot([0, 1], [0, 1], color="grey", lw=0.8)
-    a.set_xlabel("printed P(deficit), mean within bin")
+    a.set_xlabel("P(deficit) (model's, or recalibrated), mean within bin")
     a.set_ylabel("share of participants with the deficit (95% interval)")
     a.set_title(f"reliability, after {', '.join(map(str, checkpoints))} tests pooled")
     a.set_xlim(-0.02, 1.02)
@@ -64,7 +64,7 @@ def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoint
     for y in (p_decide, 1 - p_decide):
         a.axhline(y, color="grey", lw=0.8, ls=":")
     a.set_xlabel("tests done")
-    a.set_ylabel("P(deficit) (quartiles shaded for the first protocol)")
+    a.set_ylabel("model's P(deficit) (quartiles shaded, first protocol)")
     a.set_title("P(deficit) by test")
     a.set_ylim(-0.02, 1.02)
     a.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
