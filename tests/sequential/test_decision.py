@@ -349,3 +349,53 @@ def test_shipped_recalibration_loads_and_holds_for_the_shipped_s3m24_settings():
     assert "7 of 7" in s.calibration.check or "of 7" in s.calibration.check
     with pytest.raises(DataValidationError, match="calibration"):
         decision_settings({"clinician": {"decision": {"calibration": "no/such/file.csv"}}})
+
+
+def test_decision_with_tests_in_several_postures():
+    """The decision over (posture, direction) tests: a posture test moves the evidence, undo restores it exactly, the
+    forces of a weak group favour the deficit, and the recalibration (measured in neutral) does not apply."""
+    from neckstrength.config import build_directions, load_config
+    from neckstrength.model.full import load_full_model
+    from neckstrength.model.reduction import named_model
+    from neckstrength.postures.datasets import posture_dataset, posture_grid
+    from neckstrength.postures.model import build_posture_set
+    from neckstrength.postures.tables import load_posture_tables
+    from neckstrength.sequential.decision import DecisionCalibration
+
+    cfg = load_config(ROOT / "config" / "config.ci.yaml")
+    full = load_full_model(ROOT / "data" / "model", ROOT / "data" / "thesis", "derived")
+    d = build_directions({**cfg, "geometry": {**cfg["geometry"],
+                                              "test_point_spec": str(ROOT / cfg["geometry"]["test_point_spec"])}})
+    neutral = named_model(full, "p3m12", ROOT / "data" / "thesis", "anatomy")
+    ps = build_posture_set(full, neutral, load_posture_tables(ROOT / "data" / "model"), ["neutral", "flex20"])
+    grid = posture_grid(ps, d)
+    U = grid[[c for c in grid.columns if c.startswith("u") and c[1:].isdigit()]].to_numpy(float)
+    fs = grid["force_scale"].to_numpy(float)
+    f0 = neutral.strengths
+    s = DecisionSettings(group=("multif",), n_candidates=300, n_moves=2)
+    fa = f0.copy()
+    fa[s.group_indices(neutral.muscle_names)] *= 0.35
+    data = posture_dataset(ps, grid, "weak", fa)
+    labels = list(grid["label"])
+    cal = DecisionCalibration(model=neutral.name, group=("multif",), deficit_range=(0.2, 0.6), population_sd=0.3,
+                              noise=0.05, n_candidates=300, sampler="resample_move", n_directions=len(labels),
+                              cohort_share=0.5, n_patients=10, slope=1.0, intercept=0.0, bend=0.0, check="test")
+    from dataclasses import replace
+
+    dec = DeficitDecision(neutral, labels, U, fs, f0, replace(s, calibration=cal), JointSettings(),
+                          np.random.default_rng(8), pset=ps, test_postures=list(grid["posture"]))
+    assert dec.postures == ["neutral", "flex20"] and not dec.calibrated and "postures" in dec.calibration_note()
+    neutral_labels = [x for x, p in zip(labels, grid["posture"]) if p == "neutral"]
+    flex = [x for x, p in zip(labels, grid["posture"]) if p == "flex20"]
+    for x in neutral_labels[:3]:
+        dec.push(x, data.forces[labels.index(x)])
+    before = dec.log_bf()
+    dec.push(flex[0], data.forces[labels.index(flex[0])])
+    assert dec.log_bf() != before
+    dec.undo()
+    assert dec.log_bf() == before
+    for x in flex[:4]:
+        dec.push(x, data.forces[labels.index(x)])
+    assert dec.log_bf() > 0                              # the forces of a 35% group favour the deficit
+    label, sc = dec.propose()
+    assert label in dec.remaining and len(sc) == len(labels) - 7

@@ -264,6 +264,32 @@ class HypothesisPosterior(JointPosterior):
         self.n_resamples += 1
 
 
+
+class PostureHypothesisPosterior(HypothesisPosterior):
+    """:class:`HypothesisPosterior` with tests in several postures (``test_postures[k]`` of test k): the wrenches of
+    :class:`~neckstrength.postures.sequential.PostureJointPosterior` (the neutral group strengths mapped to each
+    posture's model), the priors and sampler of the hypothesis."""
+
+    def __init__(self, pset, test_postures: Sequence[str], directions: Sequence[str], U: np.ndarray,
+                 force_scale: np.ndarray, f0: np.ndarray, settings: JointSettings, prior: HypothesisPrior,
+                 rng: np.random.Generator, **kw):
+        if len(test_postures) != len(directions):
+            raise ValueError("one posture per test label")
+        self.pset = pset
+        self.test_postures = list(test_postures)
+        super().__init__(pset.neutral, directions, U, force_scale, f0, settings, prior, rng, **kw)
+
+    def _solve_all(self, F: np.ndarray, cols: np.ndarray | None = None):
+        from neckstrength.postures.sequential import PostureJointPosterior
+
+        return PostureJointPosterior._solve_all(self, F, cols)
+
+    def _bounded(self, F: np.ndarray, i: int, bounds) -> np.ndarray:
+        from neckstrength.postures.sequential import PostureJointPosterior
+
+        return PostureJointPosterior._bounded(self, F, i, bounds)
+
+
 class DeficitDecision:
     """The two hypotheses' samplers for one patient, updated one measurement at a time, with undo.
 
@@ -275,7 +301,9 @@ class DeficitDecision:
 
     def __init__(self, model: ReducedModel, directions: Sequence[str], U: np.ndarray, force_scale: np.ndarray,
                  f0: np.ndarray, settings: DecisionSettings, joint: JointSettings, rng: np.random.Generator,
-                 n_threads: int = 1, cache=None):
+                 n_threads: int = 1, cache=None, pset=None, test_postures: Sequence[str] | None = None):
+        """``pset`` and ``test_postures`` (one posture per test label; :mod:`neckstrength.postures`): tests in
+        several postures; ``U`` and ``force_scale`` then have one row per label."""
         from neckstrength.wrench.batched import BasisCache
 
         self.model = model
@@ -299,11 +327,17 @@ class DeficitDecision:
         caches = ([BasisCache() if cache is None else cache, BasisCache()] if self.parallel
                   else [BasisCache() if cache is None else cache] * 2)
 
+        self.postures = None if pset is None else list(dict.fromkeys(test_postures))
+
         def build(h, r, c):
-            return HypothesisPosterior(model, directions, U, force_scale, self.f0, js,
-                                       HypothesisPrior(self.f0, settings.population_sd, self.gidx,
-                                                       settings.deficit_range, deficit=(h == "deficit")),
-                                       r, n_threads=each, cache=c, fresh_draws=settings.sampler == "fresh_draws")
+            prior = HypothesisPrior(self.f0, settings.population_sd, self.gidx, settings.deficit_range,
+                                    deficit=(h == "deficit"))
+            if pset is not None:
+                return PostureHypothesisPosterior(pset, test_postures, directions, U, force_scale, self.f0, js, prior,
+                                                  r, n_threads=each, cache=c,
+                                                  fresh_draws=settings.sampler == "fresh_draws")
+            return HypothesisPosterior(model, directions, U, force_scale, self.f0, js, prior, r, n_threads=each,
+                                       cache=c, fresh_draws=settings.sampler == "fresh_draws")
 
         jobs = list(zip(("normal", "deficit"), rngs, caches))
         self.posts = dict(zip(("normal", "deficit"), self._both(lambda j: build(*j), jobs)))
@@ -344,7 +378,10 @@ class DeficitDecision:
         cal = self.settings.calibration
         if cal is None:
             return "none"
-        return cal.applies(self.model.name, self.settings, len(self.directions), with_emg=any(self._emg))
+        note = cal.applies(self.model.name, self.settings, len(self.directions), with_emg=any(self._emg))
+        if self.postures is not None and self.postures != ["neutral"]:
+            note = "; ".join(x for x in (note, "tests in several postures (measured in neutral only)") if x)
+        return note
 
     @property
     def calibrated(self) -> bool:
