@@ -84,7 +84,8 @@ rule clinician_decision:
     params:
         settings=settings("clinician.decision", "clinician.decision_study", "chapter6.bin_range_sd",
             "chapter6.emg_band", "chapter6.emg_groups.{named}", "chapter6.joint", "chapter6.n_bins",
-            "chapter6.prior_sd_rel", "data.model_dir", "data.thesis_dir", "model", "seed"),
+            "chapter6.prior_sd_rel", "data.model_dir", "data.thesis_dir", "model", "postures.force_length",
+            "seed"),
     log:
         "logs/clinician/{named}/decision.log",
     threads: 2    # participants in forked processes (same numbers for any count)

@@ -219,9 +219,18 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
 
     dirs, fs = list(d["name"]), d["force_scale"].to_numpy(float)
 
+    pset = None
+    if "forces+postures" in study.protocols:
+        from neckstrength.postures.model import build_posture_set
+        from neckstrength.postures.tables import load_posture_tables
+
+        pset = build_posture_set(full_model_from_config(config), model,
+                                 load_posture_tables(config["data"]["model_dir"], list(study.postures)),
+                                 list(study.postures), config.get("postures", {}).get("force_length", "relative"))
+
     def one(i):
         return run_decision_study(model, dirs, U, fs, f0, decision, joint, study, rng_for, participants=[i],
-                                  progress=lambda s: print(s, flush=True))
+                                  progress=lambda s: print(s, flush=True), pset=pset)
 
     t0 = time.time()
     for _, rows in fork_map(one, todo, max(1, int(n_threads))):

@@ -6,7 +6,10 @@ each protocol:
 
 - ``forces``: forces only;
 - ``forces+emg``: with surface EMG bounds of the recorded groups (true activation +- band in every tested direction);
-- ``forces+emg+deep``: the deficit group recorded too (fine-wire EMG).
+- ``forces+emg+deep``: the deficit group recorded too (fine-wire EMG);
+- ``forces+postures``: the test directions in several postures (``postures``, the posture set of
+  :mod:`neckstrength.postures`), the decision choosing among every (posture, direction) pair; the neutral tests'
+  forces are the ``forces`` protocol's, the other postures' get their own noise (stream ``posture_noise``).
 
 It records after every test the log Bayes factor, its Monte Carlo error, P(deficit) and the decision.
 :func:`roc_table`, :func:`sequential_table` and :func:`reliability_table` summarise it: ROC area and sensitivity
@@ -32,7 +35,7 @@ from neckstrength.sequential.cohort import CohortSettings, simulate_participant
 from neckstrength.sequential.decision import DecisionSettings, DeficitDecision
 from neckstrength.sequential.joint import JointSettings
 
-PROTOCOLS = ("forces", "forces+emg", "forces+emg+deep")
+PROTOCOLS = ("forces", "forces+emg", "forces+emg+deep", "forces+postures")
 
 
 @dataclass(frozen=True)
@@ -46,6 +49,7 @@ class DecisionStudySettings:
     emg_groups: tuple[str, ...] = ()
     emg_band: float = 0.05
     false_alarm: float = 0.05
+    postures: tuple[str, ...] = ("neutral", "flex20", "ext20")   # of the forces+postures protocol
 
     def __post_init__(self):
         bad = [p for p in self.protocols if p not in PROTOCOLS]
@@ -60,7 +64,7 @@ def run_decision_study(model: ReducedModel, directions: Sequence[str], U: np.nda
                        study: DecisionStudySettings, rng_for: Callable[[str, int], np.random.Generator],
                        participants: Sequence[int] | None = None, n_threads: int = 1,
                        progress: Callable[[str], None] | None = None,
-                       on_participant: Callable[[pd.DataFrame], None] | None = None) -> pd.DataFrame:
+                       on_participant: Callable[[pd.DataFrame], None] | None = None, pset=None) -> pd.DataFrame:
     """One row per participant, protocol and test count t (0 = before any test). Participant ``i`` is drawn from
     ``rng_for('truth', i)``; both hypotheses' samplers from ``rng_for('candidates', i)`` (the same for every
     protocol of a participant)."""
@@ -79,6 +83,19 @@ def run_decision_study(model: ReducedModel, directions: Sequence[str], U: np.nda
     rows = []
     t_start = time.time()
     cache = BasisCache()
+    if "forces+postures" in study.protocols:
+        from neckstrength.postures.model import pair_label
+
+        if pset is None:
+            raise ValueError("the forces+postures protocol needs the posture set (pset)")
+        post = [p for p in study.postures if p in pset.postures]
+        if post != list(study.postures) or "neutral" not in post:
+            raise ValueError(f"forces+postures: postures {list(study.postures)} must include neutral and be among "
+                             f"the posture set's {list(pset.postures)}")
+        p_labels = [pair_label(p, n) for p in post for n in directions]
+        p_post = [p for p in post for _ in directions]
+        p_U = np.vstack([U] * len(post))
+        p_fs = np.tile(np.asarray(force_scale, float), len(post))
     for i in todo:
         kind = kinds[i]
         f, forces, alpha = simulate_participant(model, U, force_scale, f0, decision.group, kind == "deficit", c,
@@ -88,20 +105,30 @@ def run_decision_study(model: ReducedModel, directions: Sequence[str], U: np.nda
         for protocol in study.protocols:
             t0 = time.time()
             mask = {"forces+emg": emg_mask, "forces+emg+deep": deep_mask}.get(protocol)
-            dec = DeficitDecision(model, directions, U, force_scale, f0, decision, joint, rng_for("candidates", i),
-                                  n_threads=n_threads, cache=BasisCache())
+            labels, meas = directions, forces
+            if protocol == "forces+postures":
+                w, _, st = pset.wrenches(f[None], p_U, p_post)
+                noise = np.exp(c.noise * rng_for("posture_noise", i).standard_normal(len(p_labels)))
+                meas = np.where(np.array(p_post) == "neutral", np.tile(forces, len(study.postures)),
+                                w[0] / p_fs * noise)
+                labels = p_labels
+                dec = DeficitDecision(model, p_labels, p_U, p_fs, f0, decision, joint, rng_for("candidates", i),
+                                      n_threads=n_threads, cache=BasisCache(), pset=pset, test_postures=p_post)
+            else:
+                dec = DeficitDecision(model, directions, U, force_scale, f0, decision, joint,
+                                      rng_for("candidates", i), n_threads=n_threads, cache=BasisCache())
             info = {"participant": i, "kind": kind, "true_ratio": ratio, "protocol": protocol}
             rows.append({**info, **dec.history[-1]})
             for _ in range(n_max):
                 d, _ = dec.propose()
-                k = directions.index(d)
+                k = labels.index(d)
                 act = None
                 if mask is not None:
                     lb, ub = np.zeros(len(names)), np.ones(len(names))
                     lb[mask] = np.clip(alpha[k][mask] - study.emg_band, 0, 1)
                     ub[mask] = np.clip(alpha[k][mask] + study.emg_band, 0, 1)
                     act = (lb, ub)
-                dec.push(d, float(forces[k]), act)
+                dec.push(d, float(meas[k]), act)
                 rows.append({**info, **dec.history[-1]})
             if progress:
                 h = dec.history[-1]
