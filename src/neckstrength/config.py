@@ -29,6 +29,7 @@ from neckstrength.gap.discriminate import DiscriminateSettings
 from neckstrength.gap.effects import GapContext
 from neckstrength.gap.engine import CalibrationSettings
 from neckstrength.gap.fit import FitSettings
+from neckstrength.gap.protocols import ProtocolSettings
 from neckstrength.errors import ConfigError, DataValidationError, UndeclaredSettingError  # noqa: F401  (re-exported)
 from neckstrength.io import read_activations
 from neckstrength.model.full import FullModel, load_full_model
@@ -323,7 +324,19 @@ def diagnosis_settings(config: Mapping, effects: Sequence[str] | None = None) ->
                              start_spread=g["start_spread"], refine_iter=g["refine_iter"],
                              refine_starts=g.get("refine_starts", 1),
                              reach_samples=g["reach_samples"], reach_iter=g["reach_iter"], seed=config["seed"], fit=fit,
-                             calibration=calibration_settings(config))
+                             calibration=calibration_settings(config), protocols=protocol_settings(config))
+
+
+def protocol_settings(config: Mapping) -> ProtocolSettings | None:
+    """``gap.protocols`` (absent or ``enabled: false``: no power per protocol, no advice in the reports)."""
+    p = dict(config["gap"].get("protocols") or {})
+    if not p or not p.get("enabled", True):
+        return None
+    sizes = p.get("sizes")
+    return ProtocolSettings(repeats=int(p.get("repeats", 3)),
+                            postures=tuple(str(q) for q in p.get("postures", ("flex20", "ext20"))),
+                            emg_sd=float(p.get("emg_sd", 0.1)),
+                            sizes=None if sizes is None else tuple(float(u) for u in sizes))
 
 
 def discriminate_settings(config: Mapping) -> DiscriminateSettings | None:
@@ -340,6 +353,8 @@ def discriminate_settings(config: Mapping) -> DiscriminateSettings | None:
                                 "face_max_elevation_deg") if k in pool}
     if "elevation_deg" in pool:
         kw["elevation_deg"] = tuple(float(x) for x in pool["elevation_deg"])
+    if "postures" in pool:
+        kw["postures"] = tuple(str(q) for q in pool["postures"])
     return DiscriminateSettings(p_best_below=float(d.get("p_best_below", 0.7)),
                                 candidates=int(d.get("candidates", 3)), measurements=int(d.get("measurements", 3)),
                                 objective=str(d.get("objective", "saturating")),

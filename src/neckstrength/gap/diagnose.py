@@ -75,6 +75,7 @@ class DatasetDiagnosis:
     power: pd.DataFrame = field(default_factory=pd.DataFrame)          # per effect and size (calibration)
     power_summary: pd.DataFrame = field(default_factory=pd.DataFrame)  # per effect: smallest detectable size
     discrimination: pd.DataFrame = field(default_factory=pd.DataFrame)  # proposed measurements (gap.discriminate)
+    protocols: pd.DataFrame = field(default_factory=pd.DataFrame)  # power per protocol (gap.protocols)
     calibration: object = None   # the data set's Calibration (null summaries, noise level, base fit), if calibrated
 
 
@@ -627,6 +628,10 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
             "power": {r.effect: (None if not np.isfinite(r.min_detectable_share) else r.min_detectable_share)
                       for r in pws.itertuples()},
             "power_statements": [f"{r.effect}: {r.statement}" for r in pws.itertuples()]})
+        if s.protocols is not None:
+            prot, adv, kappa = _protocol_advice(eng, cal, pws)
+            cal_summary.update({"protocol_efficiency": kappa, "protocol_advice": [a["line"] for a in adv],
+                                "protocol_choice": {a["effect"]: a["protocol"] for a in adv}})
     summary = {
         **cal_summary,
         "dataset": dat.name, "model": ctx.model.name, "n_directions": K, "folds": int(eng.F),
@@ -647,4 +652,24 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
         "penalty_per_param": s.penalty, "epsilon": s.epsilon,
     }
     return DatasetDiagnosis(dat.name, resid, planes, comps, muscles, eff_tab, pd.DataFrame(srows), summary, acts,
-                            pw, pws, calibration=cal)
+                            pw, pws, calibration=cal, protocols=prot if cal is not None and s.protocols is not None
+                            else pd.DataFrame())
+
+
+def _protocol_advice(eng: _Engine, cal, pws: pd.DataFrame):
+    """Power per protocol (:mod:`neckstrength.gap.protocols`) of the calibration's effects at its noise and base
+    fit, its efficiency fitted to the calibration's simulated power, and the advice lines."""
+    from dataclasses import replace as _replace
+
+    from neckstrength.gap.protocols import advice, fit_efficiency, protocol_power, with_efficiency
+
+    ca = eng.s.calibration
+    ps = eng.s.protocols
+    ps = _replace(ps, sizes=tuple(ps.sizes or ca.power_sizes), target=ps.target or ca.power_target)
+    effs = [eng.registry[n] for n in cal.effects]
+    npar = {e.name: e.n_params for e in effs}
+    prot = protocol_power(eng.ctx, cal.phi_fit, cal.sigma, effs, ps, ca.alpha, len(effs))
+    kappa = fit_efficiency(prot, cal.power, ca.alpha, len(effs), npar)
+    prot = with_efficiency(prot, kappa, ca.alpha, len(effs), npar)
+    prot.insert(len(prot.columns), "efficiency", kappa)
+    return prot, advice(prot, pws if len(cal.power) else None, ps, cal.sigma, cal.effects), kappa

@@ -48,6 +48,7 @@ from neckstrength.gap.effects import EFFECTS, GapContext, base_instance, compose
 from neckstrength.gap.fit import FitSettings, Simulator, fit_strengths, start_point
 from neckstrength.gap.forked import fork_map
 from neckstrength.model.geometry import HeadEllipsoid, assign_planes, direction_table
+from neckstrength.postures.model import pair_label
 
 
 @dataclass(frozen=True)
@@ -64,7 +65,8 @@ class DiscriminateSettings:
     ``strength_spread``: prior SD of log strengths for it; ``repeats`` / ``surface``: which measurements
     make up the pool; ``azimuth_step_deg``, ``elevation_deg``: the surface grid; points with |azimuth| <=
     ``face_max_abs_azimuth_deg`` and elevation <= ``face_max_elevation_deg`` are on the face, where the
-    cranial ellipsoid does not apply, and are left out; ``fit``: the refit of each candidate's strengths."""
+    cranial ellipsoid does not apply, and are left out; ``postures``: the measured directions again in these
+    postures (where the context has their tables); ``fit``: the refit of each candidate's strengths."""
 
     p_best_below: float = 0.7
     candidates: int = 3
@@ -77,6 +79,7 @@ class DiscriminateSettings:
     surface: bool = True
     azimuth_step_deg: float = 30.0
     elevation_deg: tuple[float, ...] = (-30.0, 0.0, 30.0, 60.0)
+    postures: tuple[str, ...] = ("flex20", "ext20")
     face_max_abs_azimuth_deg: float = 30.0
     face_max_elevation_deg: float = 0.0
     fit: FitSettings = field(default_factory=FitSettings)
@@ -105,7 +108,9 @@ def surface_points(head: HeadEllipsoid, s: DiscriminateSettings = DiscriminateSe
 def measurement_pool(ctx: GapContext, head: HeadEllipsoid, s: DiscriminateSettings = DiscriminateSettings(),
                      plane_bands: dict | None = None) -> pd.DataFrame:
     """Possible additional measurements: the measured directions again (``kind`` 'repeat', named
-    ``<name>#2``) and the surface grid (``kind`` 'new'); planar models keep sagittal points only. Columns as
+    ``<name>#2``), the surface grid (``kind`` 'new') and the measured directions in each of ``s.postures`` whose
+    table the context has (``kind`` 'posture', named ``<posture>:<name>``, column ``posture``; the pads move with
+    the head, so the skull-frame wrench is the direction's); planar models keep sagittal points only. Columns as
     the geometry direction table (points, normals, unit wrenches, force scale, planes)."""
     parts = []
     cols = ["name", "px", "py", "pz", "nx", "ny", "nz"]
@@ -122,9 +127,19 @@ def measurement_pool(ctx: GapContext, head: HeadEllipsoid, s: DiscriminateSettin
         if ctx.model.planar:
             sp = sp[(sp["pz"].abs() < 1e-9) & (sp["nz"].abs() < 1e-9)]
         parts.append(sp)
+    for q in s.postures if ctx.postures else ():
+        if q not in ctx.postures:
+            continue
+        rows = ctx.directions[cols].copy()
+        rows["source"] = ctx.directions["name"].to_numpy()
+        rows["name"] = [pair_label(q, n) for n in ctx.directions["name"]]
+        rows["kind"] = "posture"
+        rows["posture"] = q
+        parts.append(rows)
     if not parts:
-        raise ValueError("gap.discriminate: the pool is empty (repeats and surface both off)")
+        raise ValueError("gap.discriminate: the pool is empty (repeats, surface and postures all off)")
     pool = pd.concat(parts, ignore_index=True)
+    pool["posture"] = pool["posture"].fillna("neutral") if "posture" in pool else "neutral"
     d = direction_table(pool, head)
     bands = dict(plane_bands or {})
     d = assign_planes(d, **{k: v for k, v in (("elevation_bands", bands.get("elevation_deg")),
@@ -207,6 +222,8 @@ def predict_candidate(ctx: GapContext, T: np.ndarray, label: str, theta: dict, p
     n_ext = len(F)
     p = len(phi)
     if not s.parameter_uncertainty:
+        if "posture" in pool and (pool["posture"] != "neutral").any():
+            logF, _, _ = _posture_rows(ctx, pool, label, theta, phi, logF, None, ok, sim_e)
         return CandidatePrediction(label, theta, phi, loss, logF, np.zeros((n_ext, n_ext)))
     G = [np.where(ok[:, None], dphi / np.where(ok, F, 1.0)[:, None], 0.0)]
     prec = [np.full(p, 1.0 / max(s.strength_spread, 1e-6) ** 2)]
@@ -227,10 +244,61 @@ def predict_candidate(ctx: GapContext, T: np.ndarray, label: str, theta: dict, p
             G.append(g[:, None])
             prec.append(np.array([12.0 / span ** 2]))            # variance of a uniform prior over the range
     G = np.hstack(G)
+    if "posture" in pool and (pool["posture"] != "neutral").any():
+        logF, G, ok = _posture_rows(ctx, pool, label, theta, phi, logF, G, ok, sim_e)
     Jm = G[:K][ok[:K]]
     H = Jm.T @ Jm / max(sigma, 1e-6) ** 2 + np.diag(np.concatenate(prec))
     cov_par = np.linalg.inv(H)
     return CandidatePrediction(label, theta, phi, loss, logF, G @ cov_par @ G.T)
+
+
+def _posture_rows(ctx: GapContext, pool: pd.DataFrame, label: str, theta: dict, phi: np.ndarray,
+                  logF: np.ndarray, G: np.ndarray | None, ok: np.ndarray, sim_e: Simulator):
+    """``logF``, ``G`` (None: not needed) and ``ok`` with the pool's posture tests predicted in their postures: the
+    candidate's instance in the posture's model (:func:`neckstrength.gap.protocols.posture_context`) at the
+    neutral strengths times ``rho``; derivatives by forward differences (strengths, then effect parameters)."""
+    from neckstrength.gap.protocols import posture_context
+
+    K = ctx.K
+    logF = logF.copy()
+    ok = ok.copy()
+    G = None if G is None else G.copy()
+    names = parse_label(label)
+    p = len(phi)
+    h = 1e-3
+    for q in [x for x in dict.fromkeys(pool["posture"]) if x != "neutral"]:
+        idx = np.flatnonzero(pool["posture"].to_numpy() == q)
+        cq, rho = posture_context(ctx, q)
+        keep = [c for c in ctx.directions.columns if c in pool.columns]
+        cq = replace(cq, directions=pool.iloc[idx][keep].reset_index(drop=True))
+
+        def fq(ph, th=theta):
+            sq = Simulator(cq, _instance(cq, label, th))
+            return sq.forces(sim_e.muscles(np.atleast_2d(ph)) * rho[None])
+
+        F0 = fq(phi)[0]
+        okq = F0 > 0
+        with np.errstate(divide="ignore"):
+            lq = np.log(F0)
+        logF[K + idx] = lq
+        ok[K + idx] = okq
+        if G is None:
+            continue
+        Fh = fq(phi[None] + h * np.eye(p))
+        rowsG = [np.where(okq[None], (np.log(np.maximum(Fh, 1e-300)) - np.where(okq, lq, 0.0)[None]) / h, 0.0).T]
+        for n in names:
+            e = EFFECTS[n](cq)
+            th = np.asarray(theta[n], float)
+            for j, prm in enumerate(e.params()):
+                step = 1e-3 * (prm.hi - prm.lo)
+                step = step if th[j] + step <= prm.hi else -step
+                th2 = th.copy()
+                th2[j] += step
+                F2 = fq(phi, {**theta, n: th2})[0]
+                rowsG.append(np.where(okq & (F2 > 0), (np.log(np.maximum(F2, 1e-300)) - np.where(okq, lq, 0.0)) / step,
+                                      0.0)[:, None])
+        G[K + idx] = np.hstack(rowsG)
+    return logF, G, ok
 
 
 # ----------------------------------------------------------------------------- expected log Bayes factor

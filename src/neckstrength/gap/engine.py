@@ -18,6 +18,7 @@ from neckstrength.estimation.discrepancy import data_discrepancy
 from neckstrength.gap.effects import Effect, GapContext, base_instance, compose
 from neckstrength.gap.fit import FitSettings, Simulator, fit_strengths, make_cache, start_point
 from neckstrength.gap.forked import fork_map
+from neckstrength.gap.protocols import ProtocolSettings
 from neckstrength.seeds import derive_rng
 
 
@@ -85,6 +86,7 @@ class DiagnosisSettings:
     seed: int = 0
     fit: FitSettings = FitSettings()
     calibration: CalibrationSettings = CalibrationSettings(replicates=0)
+    protocols: ProtocolSettings | None = None     # what to measure to tell (gap.protocols; None: not computed)
 
 def direction_folds(K: int, folds: int, rng: np.random.Generator) -> np.ndarray:
     """Fold of each direction: a random permutation dealt round-robin (leave-one-out when folds >= K)."""

@@ -233,6 +233,27 @@ def _discrimination_lines(diag: DatasetDiagnosis) -> list[str]:
     return lines
 
 
+def _protocol_lines(diag: DatasetDiagnosis) -> list[str]:
+    """What to measure to tell each effect from noise (gap.protocols): the report's last section."""
+    s = diag.summary
+    adv = s.get("protocol_advice")
+    if not adv:
+        return []
+    tab = getattr(diag, "protocols", pd.DataFrame())
+    lines = ["## What to measure to tell", ""]
+    if len(tab):
+        piv = tab.pivot_table(index=["effect", "size_share"], columns="protocol", values="power", sort=False)
+        piv = piv.reset_index()
+        lines += [(f"Power of each protocol at this data set's noise (log SD {s['noise_sigma']:.3f}, "
+                   f"{s['noise_source']}): linearised likelihood-ratio power with the noncentrality divided by "
+                   f"{s['protocol_efficiency']:.3g}, the factor that matches the present tests' linearised power to "
+                   "this calibration's simulated power (gap.protocols, docs/gap_diagnosis.md). Heuristic, not "
+                   "calibrated probabilities; empty: the effect at that size cannot produce every test."), "",
+                  markdown_table(piv, ".2f"), ""]
+    lines += [f"- {a}" for a in adv]
+    return lines + [""]
+
+
 def _update_lines(diag: DatasetDiagnosis) -> list[str]:
     """The top candidates' posterior given additional trials (gap.discriminate.update_with_trials)."""
     info = diag.summary.get("update")
@@ -305,6 +326,7 @@ def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str,
             lines += [f"![activation]({figures['activation']})", ""]
     lines += ["## Per direction", "", markdown_table(res.drop(columns=["planes"])), "",
               "## Settings", "", settings_text, ""]
+    lines += _protocol_lines(diag)
     text = "\n".join(lines)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(text, encoding="utf-8")

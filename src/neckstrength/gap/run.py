@@ -88,6 +88,10 @@ def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings,
               "activation_check": act if len(act) else pd.DataFrame(
                   {"candidate": [], "pearson_r": [], "spearman_rho": [], "model_mean": [], "a3_mean": [],
                    "mean_abs_diff": []})}
+    if "protocols" in outputs:
+        from neckstrength.gap.protocols import POWER_COLUMNS
+
+        tables["protocols"] = diag.protocols if len(diag.protocols) else pd.DataFrame(columns=POWER_COLUMNS)
     for k, df in tables.items():
         if k in outputs:
             atomic_write_csv(df, outputs[k], hdr, float_format="%.6g")
@@ -119,4 +123,6 @@ def run_diagnosis(ctx: GapContext, data: BlindData, settings: DiagnosisSettings,
     atomic_write_text(json.dumps(summary, indent=2, default=float), outputs["summary"])
     print(f"done in {time.time() - t0:.0f} s: {summary['decision']}, held-out gap "
           f"{summary['gap_before']:.3f} -> {summary['gap_after']:.3f}")
+    for line in summary.get("protocol_advice") or []:
+        print(f"  {line}")
     return summary
