@@ -17,6 +17,9 @@ Modules, each importing downward only:
 - :mod:`.forked`     forked worker processes for work on unpicklable state (the fits' solvers)
 - :mod:`.store`      per-data-set results on disk, keyed by everything they depend on (resume)
 - :mod:`.benchmark`  withheld-effect generator and blind scoring (kept apart from the diagnosis)
+- :mod:`.truths`     the user-facing benchmark's truths (direction errors in a cone, effort, posture drift, size,
+                     the 96-element truth), made without the diagnosis's effects
+- :mod:`.scoring`    its scoring against a model-free detectability, with Wilson intervals
 - :mod:`.report`     per-data-set markdown report and figures
 """
 
