@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Benchmark: how long a clinician waits in `neckstrength session` (src/neckstrength/session.py).
+"""Benchmark: how long a clinician waits in `neckstrength session` (src/neckstrength/session/).
 
 For each model a session is started in a temporary folder (the candidate set is built, or loaded from
 ``--cache`` when it holds one with the same key; ``--fresh`` ignores it), then driven through every

@@ -4,6 +4,7 @@
 After the thesis in ``shared/seed`` (multi-directional isometric neck strength, ABC strength estimation,
 entropy-reducing sequential test selection). Subpackages, each importing downward only:
 
+- :mod:`neckstrength.errors`      the shared exception types (imports nothing from the package)
 - :mod:`neckstrength.io`          reading and validating tables (errors name file, row and field), atomic writers
 - :mod:`neckstrength.config`      the only reader of the config dict: loading, typed settings, seeds
 - :mod:`neckstrength.plotting`    shared plot helpers (radar grid, save)
@@ -18,7 +19,8 @@ entropy-reducing sequential test selection). Subpackages, each importing downwar
 - :mod:`neckstrength.report`      scorecard, tolerances, run records
 - :mod:`neckstrength.pipeline`    Snakemake glue, one module per rules file (science never imports it)
 - :mod:`neckstrength.trials`      a lab's raw trials -> max-force and activation tables, quality report
-- :mod:`neckstrength.session`, :mod:`neckstrength.cli`   applications on top of config and science
+- :mod:`neckstrength.session`, :mod:`neckstrength.cli`   applications on top of config and science (the session's
+  engine, :class:`neckstrength.session.Session`, has an API for front ends other than the terminal)
 - :mod:`neckstrength.estimate`   the ``estimate`` command: the Chapter 5/6 pipeline steps on one table
 
 Importing the package has no side effects.

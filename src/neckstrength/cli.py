@@ -344,7 +344,7 @@ def _cmd_session(args) -> int:
 
     try:
         if args.action == "resume":
-            s = Session.resume(args.out, threads=args.threads)
+            s = Session.resume(args.out, progress=print, threads=args.threads)
             return run_interactive(s)
         opts = SessionOptions(model=args.model, participant=args.participant,
                               priorities=parse_priorities(args.priority), config=args.config,
@@ -354,7 +354,7 @@ def _cmd_session(args) -> int:
                               prevalence=args.prevalence, noise=args.noise, noise_source=args.noise_source)
         if args.action == "replay":          # a failed replay removes what it created (session.json, log, lock)
             return replay_into(args.out, opts, args.csv, threads=args.threads)
-        return run_interactive(Session.start(args.out, opts, threads=args.threads))
+        return run_interactive(Session.create(args.out, opts, progress=print, threads=args.threads))
     except (InputError, ValueError, FileExistsError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -552,7 +552,7 @@ def read_extra_trials(path, pool: pd.DataFrame) -> pd.DataFrame:
     field is part of the name). Errors name the file, line and field."""
     import csv
 
-    from neckstrength.session import InputError
+    from neckstrength.errors import InputError
 
     try:
         text = Path(path).read_text()

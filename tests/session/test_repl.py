@@ -1,6 +1,7 @@
-"""Clinician session (src/neckstrength/session.py): input validation, the log, and the interactive program driven
-through a pseudo-terminal (pexpect): a normal session, invalid inputs, skip, undo, stop, a SIGKILL and resume,
-and the CSV replay giving the same results as the interactive run. Small N_F (8,000) keeps it under a minute."""
+"""The terminal front end (src/neckstrength/session/repl.py): the interactive program driven through a
+pseudo-terminal (pexpect): a normal session, invalid inputs, skip, undo, stop, a SIGKILL and resume, and the CSV
+replay giving the same results as the interactive run. Small N_F (8,000) keeps it under a minute. (Parsing:
+test_parse.py; the log: test_log.py.)"""
 
 import json
 import os
@@ -11,66 +12,15 @@ from pathlib import Path
 import pytest
 
 from neckstrength.io import MAX_PLAUSIBLE_FORCE_N
-from neckstrength.session import InputError, SessionLog, effective_entries, parse_activations, parse_entry, parse_force
+from neckstrength.session import effective_entries
 
 pexpect = pytest.importorskip("pexpect")
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 N_F = "8000"
 DIRS = ["forehead", "backHigh", "chinFront", "chinUnder", "backLow", "back", "noseBelow"]
 MUSCLES = ["TC-E", "TC-F", "TS-B", "TS-E", "TS-F", "CS-E", "CS-F"]
 PROMPT = r"\[help\]> |command \(measure/undo/stop/help\)> "
-
-
-# --------------------------------------------------------------------------- parsing (no terminal)
-
-@pytest.mark.parametrize("text, value", [("142", 142.0), ("142 N", 142.0), ("142N", 142.0), (" 1.5e2 ", 150.0),
-                                         (f"{MAX_PLAUSIBLE_FORCE_N:g}", MAX_PLAUSIBLE_FORCE_N)])
-def test_parse_force_accepts_newtons(text, value):
-    assert parse_force(text) == value
-
-
-@pytest.mark.parametrize("text, message", [
-    ("abc", "not a number"), ("-5", "negative"), ("0", "force 0 N"), ("nan", "not a"),
-    ("5000", f"bound {MAX_PLAUSIBLE_FORCE_N:g} N"), ("120 kN", "wrong unit 'kN'"), ("12 Nm", "a moment"),
-    ("12 N m", "a moment"), ("30 lbf", "wrong unit 'lbf'"), ("20kg", "wrong unit 'kg'")])
-def test_parse_force_rejects_with_message(text, message):
-    with pytest.raises(InputError, match=message):
-        parse_force(text)
-
-
-def test_parse_activations():
-    assert parse_activations("act=TS-B:0.4,TS-E:1", MUSCLES) == {"TS-B": 0.4, "TS-E": 1.0}
-    for bad, msg in [("act=TS-B:1.5", r"outside \[0, 1\]"), ("act=TS-B:-0.1", "outside"), ("act=XX:0.2", "unknown muscle"),
-                     ("act=TS-B", "MUSCLE:VALUE"), ("act=TS-B:x", "not a number"), ("act=TS-B:0.1,TS-B:0.2", "twice")]:
-        with pytest.raises(InputError, match=msg):
-            parse_activations(bad, MUSCLES)
-
-
-def test_parse_entry_directions():
-    e = parse_entry("measure chinFront 90 act=TS-B:0.3", "back", DIRS, ["forehead"], MUSCLES)
-    assert (e.kind, e.direction, e.force, e.activations) == ("measure", "chinFront", 90.0, {"TS-B": 0.3})
-    assert parse_entry("120", "back", DIRS, [], MUSCLES).direction == "back"
-    assert parse_entry("skip", "back", DIRS, [], MUSCLES).direction == "back"
-    with pytest.raises(InputError, match="unknown direction 'chinfrnt'.*did you mean chinFront"):
-        parse_entry("measure chinfrnt 90", "back", DIRS, [], MUSCLES)
-    with pytest.raises(InputError, match="already been tested"):
-        parse_entry("measure forehead 90", "back", DIRS, ["forehead"], MUSCLES)
-    with pytest.raises(InputError, match="force is missing"):
-        parse_entry("measure chinFront", "back", DIRS, [], MUSCLES)
-
-
-def test_log_drops_torn_tail_and_undo_folding(tmp_path):
-    log = SessionLog(tmp_path / "l.jsonl")
-    log.append({"action": "measure", "direction": "a", "force_N": 1.0})
-    log.append({"action": "skip", "direction": "b"})
-    log.append({"action": "undo"})
-    with open(log.path, "ab") as fh:
-        fh.write(b'{"action": "meas')                       # killed mid-write
-    recs = log.read()
-    assert [r["action"] for r in recs] == ["measure", "skip", "undo"]
-    assert log.path.read_bytes().endswith(b"}\n")
-    assert [r["direction"] for r in effective_entries(recs)] == ["a"]
 
 
 # --------------------------------------------------------------------------- the program in a pseudo-terminal

@@ -11,7 +11,7 @@ import pytest
 
 from neckstrength.session import Session, SessionOptions, run_interactive
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CFG = str(ROOT / "config" / "config.ci.yaml")      # clinician.session.s3m24: joint_eig, N 300
 
 

@@ -16,7 +16,7 @@ import pytest
 from neckstrength.cli import main
 from neckstrength.session import SessionLog, SessionOptions, effective_entries
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _write(path, n=3):
@@ -143,3 +143,16 @@ def test_second_resume_is_refused(held, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert f"the session is open in another process (pid {pid} since" in err
     assert not (folder / "session.log.jsonl").exists()
+
+
+def test_log_drops_torn_tail_and_undo_folding(tmp_path):
+    log = SessionLog(tmp_path / "l.jsonl")
+    log.append({"action": "measure", "direction": "a", "force_N": 1.0})
+    log.append({"action": "skip", "direction": "b"})
+    log.append({"action": "undo"})
+    with open(log.path, "ab") as fh:
+        fh.write(b'{"action": "meas')                       # killed mid-write
+    recs = log.read()
+    assert [r["action"] for r in recs] == ["measure", "skip", "undo"]
+    assert log.path.read_bytes().endswith(b"}\n")
+    assert [r["direction"] for r in effective_entries(recs)] == ["a"]

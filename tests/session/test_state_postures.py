@@ -22,7 +22,7 @@ from neckstrength.session import (
     run_interactive,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CFG = str(ROOT / "config" / "config.ci.yaml")
 KNOWN = ["neutral", "flex20", "ext20", "rotL30", "rotR30", "bendL15", "bendR15"]
 DIRS = ["forehead", "backHigh", "chinFront", "chinUnder", "backLow", "back", "noseBelow"]

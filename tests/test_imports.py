@@ -1,0 +1,111 @@
+"""The package's import graph, read from the source (every ``import``/``from ... import`` of a neckstrength module,
+at module level or inside a function): no cycle among neckstrength modules, and nothing outside ``pipeline/`` imports
+``neckstrength.pipeline`` (the science and the applications never depend on the Snakemake glue)."""
+
+import ast
+from pathlib import Path
+
+PKG = Path(__file__).resolve().parents[1] / "src" / "neckstrength"
+
+# Imports of neckstrength.pipeline from outside pipeline/ that exist today and are to go (issue 33 item 3: the
+# stages return results). The test fails on any other, and when one of these is gone (so the list only shrinks).
+KNOWN_PIPELINE_IMPORTS = {("neckstrength.estimate", "neckstrength.pipeline.chapter5"),
+                          ("neckstrength.estimate", "neckstrength.pipeline.chapter6"),
+                          ("neckstrength.estimate", "neckstrength.pipeline.common")}
+
+
+def _modules(root: Path = PKG) -> dict[str, Path]:
+    mods = {}
+    for p in root.rglob("*.py"):
+        parts = list(p.relative_to(root.parent).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        mods[".".join(parts)] = p
+    return mods
+
+
+def import_graph(root: Path = PKG) -> dict[str, set[str]]:
+    """Module -> the neckstrength modules it imports (``from pkg import sub`` counts as importing ``pkg.sub``)."""
+    mods = _modules(root)
+
+    def resolve(name):
+        while name and name not in mods:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    graph = {}
+    for m, p in mods.items():
+        edges = set()
+        package = m if p.name == "__init__.py" else m.rpartition(".")[0]
+        for node in ast.walk(ast.parse(p.read_text(), str(p))):
+            if isinstance(node, ast.Import):
+                edges |= {resolve(a.name) for a in node.names if a.name.split(".")[0] == "neckstrength"}
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:                                   # relative: from its package, up level - 1
+                    up = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                    base = ".".join(up + ([node.module] if node.module else []))
+                if base.split(".")[0] != "neckstrength":
+                    continue
+                for a in node.names:
+                    sub = f"{base}.{a.name}"
+                    edges.add(sub if sub in mods else resolve(base))
+        graph[m] = edges - {None, m}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan), each sorted."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_cycle():
+    assert cycles(import_graph()) == []
+
+
+def test_cycle_detector_finds_a_cycle(tmp_path):
+    pkg = tmp_path / "neckstrength"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from neckstrength.sub import b\n")
+    (pkg / "sub" / "b.py").write_text("def f():\n    from neckstrength.c import x\n")
+    (pkg / "c.py").write_text("from . import a\n")
+    assert cycles(import_graph(pkg)) == [["neckstrength.a", "neckstrength.c", "neckstrength.sub.b"]]
+
+
+def test_only_pipeline_imports_pipeline():
+    found = {(m, t) for m, ts in import_graph().items() if not m.startswith("neckstrength.pipeline")
+             for t in ts if t == "neckstrength.pipeline" or t.startswith("neckstrength.pipeline.")}
+    assert found - KNOWN_PIPELINE_IMPORTS == set(), "outside pipeline/, these import neckstrength.pipeline"
+    assert KNOWN_PIPELINE_IMPORTS - found == set(), "gone: remove them from KNOWN_PIPELINE_IMPORTS"
+
+
+def test_errors_sit_at_the_bottom():
+    assert import_graph()["neckstrength.errors"] == set()
