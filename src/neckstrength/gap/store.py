@@ -45,6 +45,10 @@ def context_fingerprint(ctx: GapContext) -> str:
     for a in (ctx.model.strengths, ctx.model.moment_arms, ctx.model.JT, ctx.head_centre,
               ctx.directions.select_dtypes("number").to_numpy(float)):
         h.update(np.ascontiguousarray(np.asarray(a, float)).tobytes())
+    for name, t in sorted(dict(ctx.postures or {}).items()):     # posture_drift and the posture tests use them
+        h.update(name.encode())
+        h.update(np.ascontiguousarray(np.r_[t.moment_arms.ravel(), t.centres.ravel(), t.factor_rel]).tobytes())
+    h.update(repr((ctx.posture_angle, ctx.force_length)).encode())
     h.update(repr((ctx.model.name, tuple(ctx.model.muscle_names), tuple(ctx.directions["name"]), ctx.emg_groups,
                    ctx.shoulder_muscles, ctx.tie_sides, sorted((k, sorted(dict(v or {}).items()))
                                                            for k, v in dict(ctx.settings).items()))).encode())
