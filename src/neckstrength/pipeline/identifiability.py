@@ -80,7 +80,8 @@ def fig_profiles(prof: pd.DataFrame, deficit_group: str, model_name: str, out_pn
         ax.set_xlabel("fixed group's factor r (x 'norm' f_a)")
         ax.set_ylabel("best RMS log residual")
         lo, hi = p["lo"].iloc[0], p["hi"].iloc[0]
-        ax.set_title(f"{model_name} 'weak', 25 neutral tests: each group fixed,\nothers free in {lo:g}-{hi:g}x ({b})",
+        n = int(p["n_tests"].iloc[0])
+        ax.set_title(f"{model_name} 'weak', {n} neutral tests: each group fixed,\nothers free in {lo:g}-{hi:g}x ({b})",
                      fontsize=10)
         ax.legend(fontsize=7, ncol=2, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         # bottom: the deficit group on the deficit truths, per protocol
