@@ -1,6 +1,7 @@
 """The package's import graph, read from the source (every ``import``/``from ... import`` of a neckstrength module,
-at module level or inside a function): no cycle among neckstrength modules, and nothing outside ``pipeline/`` imports
-``neckstrength.pipeline`` (the science and the applications never depend on the Snakemake glue)."""
+at module level or inside a function; not those under ``if TYPE_CHECKING:``, which never run): no cycle among
+neckstrength modules, and nothing outside ``pipeline/`` imports ``neckstrength.pipeline`` (the science and the
+applications never depend on the Snakemake glue)."""
 
 import ast
 from pathlib import Path
@@ -24,6 +25,18 @@ def _modules(root: Path = PKG) -> dict[str, Path]:
     return mods
 
 
+def _runtime_nodes(tree: ast.AST):
+    """Every node of ``tree`` except those under ``if TYPE_CHECKING:`` (imports for annotations only, never run)."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        yield node
+        if isinstance(node, ast.If) and getattr(node.test, "id", getattr(node.test, "attr", None)) == "TYPE_CHECKING":
+            stack.extend(node.orelse)
+            continue
+        stack.extend(ast.iter_child_nodes(node))
+
+
 def import_graph(root: Path = PKG) -> dict[str, set[str]]:
     """Module -> the neckstrength modules it imports (``from pkg import sub`` counts as importing ``pkg.sub``)."""
     mods = _modules(root)
@@ -37,7 +50,7 @@ def import_graph(root: Path = PKG) -> dict[str, set[str]]:
     for m, p in mods.items():
         edges = set()
         package = m if p.name == "__init__.py" else m.rpartition(".")[0]
-        for node in ast.walk(ast.parse(p.read_text(), str(p))):
+        for node in _runtime_nodes(ast.parse(p.read_text(), str(p))):
             if isinstance(node, ast.Import):
                 edges |= {resolve(a.name) for a in node.names if a.name.split(".")[0] == "neckstrength"}
             elif isinstance(node, ast.ImportFrom):
@@ -97,7 +110,9 @@ def test_cycle_detector_finds_a_cycle(tmp_path):
     (pkg / "a.py").write_text("from neckstrength.sub import b\n")
     (pkg / "sub" / "b.py").write_text("def f():\n    from neckstrength.c import x\n")
     (pkg / "c.py").write_text("from . import a\n")
+    (pkg / "d.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from neckstrength import a\n")
     assert cycles(import_graph(pkg)) == [["neckstrength.a", "neckstrength.c", "neckstrength.sub.b"]]
+    assert import_graph(pkg)["neckstrength.d"] == set()
 
 
 def test_only_pipeline_imports_pipeline():

@@ -10,7 +10,7 @@ simulated data sets with the same engine.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -18,8 +18,10 @@ from neckstrength.estimation.discrepancy import data_discrepancy
 from neckstrength.gap.effects import Effect, GapContext, base_instance, compose
 from neckstrength.gap.fit import FitSettings, Simulator, fit_strengths, make_cache, start_point
 from neckstrength.gap.forked import fork_map
-from neckstrength.gap.protocols import ProtocolSettings
 from neckstrength.seeds import derive_rng
+
+if TYPE_CHECKING:    # for the annotation only: gap.protocols uses gap.calibrate, which imports this module
+    from neckstrength.gap.protocols import ProtocolSettings
 
 
 @dataclass(frozen=True)
