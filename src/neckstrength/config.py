@@ -313,7 +313,10 @@ def abc_settings(config: Mapping, model_name: str) -> ABCSettings:
                        tie_sides=per.get("tie_sides", False), store_candidates=c.get("store_candidates", 3000))
 
 
-def diagnosis_settings(config: Mapping, effects: Sequence[str] | None = None) -> DiagnosisSettings:
+def diagnosis_settings(config: Mapping, effects: Sequence[str] | None = None,
+                       protocols: bool = True) -> DiagnosisSettings:
+    """``gap`` as :class:`DiagnosisSettings`; ``protocols`` False: without the power per protocol (``gap.protocols``
+    not read; the withheld-effect benchmark scores the decision only)."""
     g = config["gap"]
     f = g["fit"]
     fit = FitSettings(max_iter=f["max_iter"], ridge=f["ridge"], bounds_rel=tuple(f["bounds_rel"]),
@@ -324,7 +327,8 @@ def diagnosis_settings(config: Mapping, effects: Sequence[str] | None = None) ->
                              start_spread=g["start_spread"], refine_iter=g["refine_iter"],
                              refine_starts=g.get("refine_starts", 1),
                              reach_samples=g["reach_samples"], reach_iter=g["reach_iter"], seed=config["seed"], fit=fit,
-                             calibration=calibration_settings(config), protocols=protocol_settings(config))
+                             calibration=calibration_settings(config),
+                             protocols=protocol_settings(config) if protocols else None)
 
 
 def protocol_settings(config: Mapping) -> ProtocolSettings | None:

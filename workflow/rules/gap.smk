@@ -58,7 +58,8 @@ rule gap_diagnose:
             "gap.effect_settings", "gap.effects", "gap.fit", "gap.folds", "gap.grid_points", "gap.measurements",
             "gap.pair_grid_top", "gap.pairs_top", "gap.penalty", "gap.reach_iter", "gap.reach_samples",
             "gap.refine_iter", "gap.refine_starts", "gap.shoulder_muscles", "gap.start_spread", "gap.starts",
-            "gap.tie_sides", "geometry.head", "geometry.plane_bands", "model", "seed"),
+            "gap.tie_sides", "gap.protocols", "geometry.head", "geometry.plane_bands", "model",
+            "postures.force_length", "seed"),
     log:
         "logs/gap/{model}/{dataset}/diagnose.log",
     threads: 2   # processes for the calibration's screen of the simulated data sets
@@ -136,7 +137,7 @@ rule gap_benchmark:
         summary="results/gap/{model}/benchmark/summary.json",
     params:
         settings=settings("chapter5.emg_groups.{model}", "chapter5.epsilon", "chapter5.settings.{model}",
-            "data.model_dir", "data.thesis_dir", "gap.benchmark.bootstrap", "gap.benchmark.calibration",
+            "data.model_dir", "data.thesis_dir", "postures.force_length", "gap.benchmark.bootstrap", "gap.benchmark.calibration",
             "gap.benchmark.chunk", "gap.benchmark.clear_size", "gap.benchmark.controls",
             "gap.benchmark.diagnosis_effects", "gap.benchmark.effects", "gap.benchmark.folds",
             "gap.benchmark.mismatch_replicates", "gap.benchmark.noise_rel", "gap.benchmark.pairs",

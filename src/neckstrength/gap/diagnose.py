@@ -672,4 +672,5 @@ def _protocol_advice(eng: _Engine, cal, pws: pd.DataFrame):
     kappa = fit_efficiency(prot, cal.power, ca.alpha, len(effs), npar)
     prot = with_efficiency(prot, kappa, ca.alpha, len(effs), npar)
     prot.insert(len(prot.columns), "efficiency", kappa)
-    return prot, advice(prot, pws if len(cal.power) else None, ps, cal.sigma, cal.effects), kappa
+    return prot, advice(prot, pws if len(cal.power) else None, ps, cal.sigma, cal.effects,
+                        oracle=not np.isfinite(kappa)), kappa

@@ -22,7 +22,7 @@ parameters and ``c`` the ``1 - alpha / E`` quantile of ``chi2_d`` (``E`` effects
 best): a likelihood-ratio test that knows the noise and the effect's form. The diagnosis's cross-validated maxT
 decision needs more: ``power`` divides ``lambda`` by an *efficiency* ``kappa`` fitted so that the linearised
 power of the present tests matches the calibration's simulated power of the same data set (:func:`fit_efficiency`;
-``kappa`` 1 without simulated power). So the protocols are compared on the scale of the diagnosis's own
+not fitted without simulated power or where it is 0 everywhere: then the oracle's power is used, and said so). So the protocols are compared on the scale of the diagnosis's own
 decision, but only through one fitted factor per data set: the figures are heuristic, not calibrated
 probabilities (docs/gap_diagnosis.md compares them with simulation).
 
@@ -251,7 +251,8 @@ def with_efficiency(power: pd.DataFrame, efficiency: float, alpha: float, n_effe
     """``power`` (:func:`protocol_power`) with its ``power`` column recomputed for ``efficiency``."""
     E = max(1, int(n_effects))
     out = power.copy()
-    out["power"] = [_power(r.noncentrality, n_params[r.effect], alpha / E, efficiency) for r in out.itertuples()]
+    k = efficiency if np.isfinite(efficiency) else 1.0
+    out["power"] = [_power(r.noncentrality, n_params[r.effect], alpha / E, k) for r in out.itertuples()]
     return out
 
 
@@ -260,16 +261,17 @@ def fit_efficiency(power: pd.DataFrame, simulated: pd.DataFrame, alpha: float, n
     """The factor by which the diagnosis's decision needs more noncentrality than the likelihood-ratio test: the
     value on a log grid (1 to 10^4) that best matches the linearised power of the present tests to the
     calibration's simulated power (its ``power`` table: effect, size_share, replicates, power), weighted by the
-    replicates; 1 when there is no simulated power."""
+    replicates; nan when there is no simulated power or it is 0 everywhere (then any large factor fits: e.g. when
+    the p-value's resolution cannot reach alpha, nothing is ever named)."""
     if simulated is None or not len(simulated):
-        return 1.0
+        return np.nan
     d = power[(power["protocol"] == "directions") & power["noncentrality"].notna()].set_index(
         ["effect", "size_share"])["noncentrality"]
     pairs = [(float(d[(r.effect, float(r.size_share))]), n_params[r.effect], float(r.power), int(r.replicates))
              for r in simulated.itertuples() if (r.effect, float(r.size_share)) in d.index and r.replicates > 0
              and np.isfinite(r.power)]
-    if not pairs:
-        return 1.0
+    if not pairs or not any(pw > 0 for _, _, pw, _ in pairs):
+        return np.nan
     grid = np.logspace(0, 4, 81)
     E = max(1, int(n_effects))
     err = [sum(n * (_power(lam, k, alpha / E, g) - pw) ** 2 for lam, k, pw, n in pairs) for g in grid]
@@ -281,10 +283,12 @@ def protocol_text(protocol: str, s: ProtocolSettings) -> str:
 
 
 def advice(power: pd.DataFrame, simulated: pd.DataFrame | None, s: ProtocolSettings, sigma: float,
-           effects: Sequence[str]) -> list[dict]:
+           effects: Sequence[str], oracle: bool = False) -> list[dict]:
     """One line per effect (module docstring, "Advice"): ``{'effect', 'protocol', 'size_share', 'power',
     'basis', 'line'}``. ``power``: :func:`protocol_power`; ``simulated``: the calibration's power summary
-    (:func:`neckstrength.gap.calibrate.power_summary`, its ``min_detectable_share``) or None."""
+    (:func:`neckstrength.gap.calibrate.power_summary`, its ``min_detectable_share``) or None; ``oracle``: the
+    power is the likelihood-ratio test's (no efficiency fitted), and the lines say so."""
+    tag = "oracle linearised power, no efficiency fitted" if oracle else "linearised power"
     if s.target is None:
         s = replace(s, target=0.8)
     out = []
@@ -309,9 +313,9 @@ def advice(power: pd.DataFrame, simulated: pd.DataFrame | None, s: ProtocolSetti
             out.append({"effect": name, "protocol": r["protocol"], "size_share": float(r["size_share"]),
                         "power": float(r["power"]), "basis": "linearised",
                         "line": f"to tell `{name}` from noise, {what} (from {r['size_share']:g} of its range, "
-                        f"{r['theta']}; linearised power {r['power']:.2f}, heuristic)"})
+                        f"{r['theta']}; {tag} {r['power']:.2f}, heuristic)"})
         else:
             out.append({"effect": name, "protocol": "-", "size_share": np.nan, "power": np.nan, "basis": "-",
                         "line": f"no listed protocol tells `{name}` from noise at this noise (log SD {sigma:.3f}; "
-                        f"linearised power < {s.target:g} at every size up to its bound)"})
+                        f"{tag} < {s.target:g} at every size up to its bound)"})
     return out

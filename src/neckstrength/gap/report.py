@@ -244,12 +244,15 @@ def _protocol_lines(diag: DatasetDiagnosis) -> list[str]:
     if len(tab):
         piv = tab.pivot_table(index=["effect", "size_share"], columns="protocol", values="power", sort=False)
         piv = piv.reset_index()
+        k = s.get("protocol_efficiency", np.nan)
+        scale = (f"with the noncentrality divided by {k:.3g}, the factor that matches the present tests' linearised "
+                 "power to this calibration's simulated power" if np.isfinite(k) else
+                 "of a likelihood-ratio test that knows the effect's form (the calibration's simulated power is 0 "
+                 "at every size or absent, so the diagnosis's own efficiency could not be fitted: optimistic)")
         lines += [(f"Power of each protocol at this data set's noise (log SD {s['noise_sigma']:.3f}, "
-                   f"{s['noise_source']}): linearised likelihood-ratio power with the noncentrality divided by "
-                   f"{s['protocol_efficiency']:.3g}, the factor that matches the present tests' linearised power to "
-                   "this calibration's simulated power (gap.protocols, docs/gap_diagnosis.md). Heuristic, not "
-                   "calibrated probabilities; empty: the effect at that size cannot produce every test."), "",
-                  markdown_table(piv, ".2f"), ""]
+                   f"{s['noise_source']}): linearised likelihood-ratio power {scale} (gap.protocols, "
+                   "docs/gap_diagnosis.md). Heuristic, not calibrated probabilities; empty: the effect at that size "
+                   "cannot produce every test."), "", markdown_table(piv, ".2f"), ""]
     lines += [f"- {a}" for a in adv]
     return lines + [""]
 

@@ -103,7 +103,7 @@ def benchmark_setup(config: Mapping, model_name: str, directions: pd.DataFrame):
     ctx = gap_context(config, model_name, directions)
     b = config["gap"]["benchmark"]
     bs = benchmark_settings(config)
-    ds = diagnosis_settings(config, b.get("diagnosis_effects"))
+    ds = diagnosis_settings(config, b.get("diagnosis_effects"), protocols=False)
     cal = calibration_settings({"gap": {"calibration": {**(config["gap"].get("calibration") or {}),
                                                          **(b.get("calibration") or {})}}})
     ds = DiagnosisSettings(**{**ds.__dict__, "folds": b.get("folds", ds.folds),
