@@ -399,3 +399,25 @@ def test_decision_with_tests_in_several_postures():
     assert dec.log_bf() > 0                              # the forces of a 35% group favour the deficit
     label, sc = dec.propose()
     assert label in dec.remaining and len(sc) == len(labels) - 7
+
+
+def test_session_screen_says_which_probability_it_prints(p2m7):
+    """The session's line under the decision: 'recalibrated' with the check where the recalibration holds, 'NOT
+    calibrated (heuristic: ...)' with the reason where it does not."""
+    from dataclasses import replace
+
+    from neckstrength.sequential.decision import DecisionCalibration
+    from neckstrength.session.render import decision_p_label
+
+    model, data = p2m7
+    base = DecisionSettings(group=("TS-E",), n_candidates=300, n_moves=2)
+    cal = DecisionCalibration(model=model.name, group=("TS-E",), deficit_range=(0.2, 0.6), population_sd=0.3,
+                              noise=0.05, n_candidates=300, sampler="resample_move",
+                              n_directions=len(data.directions), cohort_share=0.5, n_patients=10, slope=0.5,
+                              intercept=1.0, bend=0.0, check="cross-fitted reliability: 7 of 7 bins")
+    on = DeficitDecision(model, data.directions, data.U, data.force_scale, model.strengths,
+                         replace(base, calibration=cal), JointSettings(), np.random.default_rng(4))
+    off = DeficitDecision(model, data.directions, data.U, data.force_scale, model.strengths,
+                          replace(base, calibration=cal, noise=0.08), JointSettings(), np.random.default_rng(4))
+    assert "recalibrated on 10 simulated patients" in decision_p_label(on) and "7 of 7" in decision_p_label(on)
+    assert "NOT calibrated (heuristic" in decision_p_label(off) and "noise 0.08" in decision_p_label(off)

@@ -664,9 +664,10 @@ class Session:
             decision = {"decision": h["decision"], "p_deficit": h["p_deficit"], "log_bf": h["log_bf"],
                         "log_bf_se": h["log_bf_se"], "misfit_rms": h.get("misfit_rms"),
                         "trend": [x["p_deficit"] for x in dec.history], "settings": dec.settings,
-                        "settings_label": dec.settings.label(), "calibrated": False,
-                        "label": "P(deficit) is NOT calibrated (heuristic); the log Bayes factor's ± is its Monte "
-                                 "Carlo error (heuristic); how well it decides: docs/clinician.md",
+                        "settings_label": dec.settings.label(), "calibrated": dec.calibrated,
+                        "p_model": h.get("p_model"),
+                        "label": (f"P(deficit): {dec.p_label()}; the log Bayes factor's ± is its Monte Carlo error "
+                                  "(heuristic); how well it decides: docs/clinician.md"),
                         "text": render.decision_lines(self)}
         return _plain({
             "format": "neckstrength-session-state/1", "participant": self.opts.participant, "model": self.model.name,
@@ -735,8 +736,8 @@ class Session:
                "entropy in nats (Eq. 6.3)"]
         if self.decision is not None:
             dec = self.decision
-            hdr.append(f"deficit decision: {dec.decision()}, P(deficit) {dec.p_deficit():.3f}, log Bayes factor "
-                       f"{dec.log_bf():+.2f} ± {dec.log_bf_se():.2f} (Monte Carlo, heuristic); "
+            hdr.append(f"deficit decision: {dec.decision()}, P(deficit) {dec.p_deficit():.3f} ({dec.p_label()}), "
+                       f"log Bayes factor {dec.log_bf():+.2f} ± {dec.log_bf_se():.2f} (Monte Carlo, heuristic); "
                        f"{dec.settings.label()}; how well it decides: docs/clinician.md")
         atomic_write_csv(e, self.out / "summary.csv", hdr, float_format="%.6g")
         # per-step trajectory (iteration 0 = prior)
