@@ -309,7 +309,7 @@ def test_recalibrated_probability_is_used_only_where_it_holds(p2m7):
     base = DecisionSettings(group=("TS-E",), n_candidates=300, n_moves=2)
     cal = DecisionCalibration(model=model.name, group=("TS-E",), deficit_range=(0.2, 0.6), population_sd=0.3,
                               noise=0.05, n_candidates=300, sampler="resample_move",
-                              n_directions=len(data.directions), cohort_share=0.5, n_patients=10, slope=0.5,
+                              n_directions=len(data.directions), cohort_share=0.5, n_patients=10, t_from=0, slope=0.5,
                               intercept=1.0, bend=0.0, check="test")
     other = DecisionCalibration(**{**cal.__dict__, "model": "s3m24"})
     from dataclasses import replace
@@ -324,6 +324,9 @@ def test_recalibrated_probability_is_used_only_where_it_holds(p2m7):
         dec.push(d, forces[data.directions.index(d)])
         off.push(d, forces[data.directions.index(d)])
     assert dec.calibrated and not off.calibrated
+    late = DecisionCalibration(**{**cal.__dict__, "t_from": 5})          # fitted from the 5th test on
+    assert "3 tests, recalibrated from the 5th" in late.applies(model.name, base, len(data.directions), n_tests=3)
+    assert late.applies(model.name, base, len(data.directions), n_tests=5) == ""
     assert "measured on s3m24" in off.calibration_note() and "heuristic" in off.p_label()
     assert off.p_deficit() == off.p_model()
     x = dec.log_bf()
@@ -379,7 +382,7 @@ def test_decision_with_tests_in_several_postures():
     labels = list(grid["label"])
     cal = DecisionCalibration(model=neutral.name, group=("multif",), deficit_range=(0.2, 0.6), population_sd=0.3,
                               noise=0.05, n_candidates=300, sampler="resample_move", n_directions=len(labels),
-                              cohort_share=0.5, n_patients=10, slope=1.0, intercept=0.0, bend=0.0, check="test")
+                              cohort_share=0.5, n_patients=10, t_from=0, slope=1.0, intercept=0.0, bend=0.0, check="test")
     from dataclasses import replace
 
     dec = DeficitDecision(neutral, labels, U, fs, f0, replace(s, calibration=cal), JointSettings(),
@@ -403,7 +406,7 @@ def test_decision_with_tests_in_several_postures():
 
 def test_session_screen_says_which_probability_it_prints(p2m7):
     """The session's line under the decision: 'recalibrated' with the check where the recalibration holds, 'NOT
-    calibrated (heuristic: ...)' with the reason where it does not."""
+    calibrated: heuristic, ...' with the reason where it does not."""
     from dataclasses import replace
 
     from neckstrength.sequential.decision import DecisionCalibration
@@ -413,11 +416,11 @@ def test_session_screen_says_which_probability_it_prints(p2m7):
     base = DecisionSettings(group=("TS-E",), n_candidates=300, n_moves=2)
     cal = DecisionCalibration(model=model.name, group=("TS-E",), deficit_range=(0.2, 0.6), population_sd=0.3,
                               noise=0.05, n_candidates=300, sampler="resample_move",
-                              n_directions=len(data.directions), cohort_share=0.5, n_patients=10, slope=0.5,
+                              n_directions=len(data.directions), cohort_share=0.5, n_patients=10, t_from=0, slope=0.5,
                               intercept=1.0, bend=0.0, check="cross-fitted reliability: 7 of 7 bins")
     on = DeficitDecision(model, data.directions, data.U, data.force_scale, model.strengths,
                          replace(base, calibration=cal), JointSettings(), np.random.default_rng(4))
     off = DeficitDecision(model, data.directions, data.U, data.force_scale, model.strengths,
                           replace(base, calibration=cal, noise=0.08), JointSettings(), np.random.default_rng(4))
     assert "recalibrated on 10 simulated patients" in decision_p_label(on) and "7 of 7" in decision_p_label(on)
-    assert "NOT calibrated (heuristic" in decision_p_label(off) and "noise 0.08" in decision_p_label(off)
+    assert "NOT calibrated: heuristic" in decision_p_label(off) and "noise 0.08" in decision_p_label(off)

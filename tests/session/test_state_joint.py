@@ -46,7 +46,7 @@ def test_s3m24_session_defaults_to_joint_eig_and_shows_deficit_trend(tmp_path):
     assert "Bayes factor deficit : normal" in last[1] and "heuristic" in last[1] and "prevalence 50%" in last[1]
     assert "depends on:" in last[2] and "noise 5%" in last[2]
     # CI sizes (300 candidates per hypothesis) are not those the shipped recalibration was measured at (1000)
-    assert "NOT calibrated (heuristic" in last[3] and "n_candidates 300" in last[3] and "docs/clinician.md" in last[3]
+    assert "NOT calibrated: heuristic" in last[3] and "n_candidates 300" in last[3] and "docs/clinician.md" in last[3]
     snap = s.snapshot()
     assert snap["decision"]["calibrated"] is False and "heuristic" in snap["decision"]["label"]
     assert s.decision is not None and len(s.decision.history) == 3

@@ -134,6 +134,7 @@ class DecisionCalibration:
     n_directions: int
     cohort_share: float
     n_patients: int
+    t_from: int                                 # fitted on the patients' P after t >= t_from tests
     slope: float
     intercept: float
     bend: float
@@ -149,20 +150,23 @@ class DecisionCalibration:
         return self.slope + self.bend / 2 / math.cosh(log_bf / 2) ** 2
 
     def applies(self, model_name: str, settings: "DecisionSettings", n_directions: int,
-                with_emg: bool = False) -> str:
-        """'' when this recalibration holds for a decision with these settings, else the reason it does not."""
+                with_emg: bool = False, n_tests: int | None = None) -> str:
+        """'' when this recalibration holds for a decision with these settings (and, given ``n_tests``, at this
+        many tests: it was fitted from the ``t_from``-th on), else the reason it does not."""
         diff = []
+        if n_tests is not None and n_tests < self.t_from:
+            diff.append(f"{n_tests} tests, recalibrated from the {self.t_from}th")
         if model_name != self.model:
-            diff.append(f"model {model_name} (measured on {self.model})")
+            diff.append(f"model {model_name}, measured on {self.model}")
         for name in ("group", "deficit_range", "population_sd", "noise", "n_candidates", "sampler"):
             a, b = getattr(settings, name), getattr(self, name)
             if (tuple(a) != tuple(b)) if isinstance(a, tuple) else not (a == b or (isinstance(a, float)
                                                                                   and math.isclose(a, b))):
-                diff.append(f"{name} {a} (measured at {b})")
+                diff.append(f"{name} {a}, measured at {b}")
         if n_directions != self.n_directions:
-            diff.append(f"{n_directions} test directions (measured with {self.n_directions})")
+            diff.append(f"{n_directions} test directions, measured with {self.n_directions}")
         if with_emg:
-            diff.append("EMG entries (measured on forces only)")
+            diff.append("EMG entries, measured on forces only")
         return "; ".join(diff)
 
     def label(self) -> str:
@@ -192,7 +196,8 @@ class DecisionCalibration:
                    population_sd=float(r["population_sd"]), noise=float(r["noise"]),
                    n_candidates=int(r["n_candidates"]), sampler=str(r["sampler"]),
                    n_directions=int(r["n_directions"]), cohort_share=float(r["cohort_share"]),
-                   n_patients=int(r["n_patients"]), slope=float(r["slope"]), intercept=float(r["intercept"]),
+                   n_patients=int(r["n_patients"]), t_from=int(r["t_from"]), slope=float(r["slope"]),
+                   intercept=float(r["intercept"]),
                    bend=float(r["bend"]), check=str(r["check"]), source=source or str(r.get("source", "")))
 
 
@@ -378,9 +383,10 @@ class DeficitDecision:
         cal = self.settings.calibration
         if cal is None:
             return "none"
-        note = cal.applies(self.model.name, self.settings, len(self.directions), with_emg=any(self._emg))
+        note = cal.applies(self.model.name, self.settings, len(self.directions), with_emg=any(self._emg),
+                           n_tests=len(self.tested))
         if self.postures is not None and self.postures != ["neutral"]:
-            note = "; ".join(x for x in (note, "tests in several postures (measured in neutral only)") if x)
+            note = "; ".join(x for x in (note, "tests in several postures, measured in neutral only") if x)
         return note
 
     @property
@@ -393,8 +399,8 @@ class DeficitDecision:
         if self.calibrated:
             return self.settings.calibration.label()
         note = self.calibration_note()
-        why = "no recalibration for these settings" if note == "none" else f"recalibration does not hold: {note}"
-        return f"heuristic: the model's probability, not calibrated ({why})"
+        why = "no recalibration configured" if note == "none" else f"the recalibration does not hold: {note}"
+        return f"heuristic, the model's own probability; {why}"
 
     def p_model(self, prevalence: float | None = None) -> float:
         """P(deficit) from the model's Bayes factor as it stands (conservative on the decision study's cohort)."""

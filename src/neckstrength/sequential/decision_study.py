@@ -341,7 +341,8 @@ def recalibrate(runs: pd.DataFrame, decision, model_name: str, n_directions: int
                               deficit_range=tuple(decision.deficit_range), population_sd=decision.population_sd,
                               noise=decision.noise, n_candidates=decision.n_candidates, sampler=decision.sampler,
                               n_directions=int(n_directions), cohort_share=share,
-                              n_patients=int(runs["participant"].nunique()), slope=a, intercept=b, bend=c, check=check,
+                              n_patients=int(runs["participant"].nunique()), t_from=int(t_from), slope=a,
+                              intercept=b, bend=c, check=check,
                               source=source)
     rows = []
     for t in checkpoints:

@@ -163,9 +163,9 @@ def decision_p_label(dec) -> str:
     if dec.calibrated:
         return (f"  P(deficit) {dec.p_label()} (docs/clinician.md); it holds for patients like the simulated ones "
                 f"(5% noise, the cohort's population), not under model misfit, which real participants have")
-    return (f"  P(deficit) is NOT calibrated ({dec.p_label()}): the model's own P was conservative between 0.2 "
-            f"and 0.6 on simulated patients of this model, where the rule's sensitivity and false alarms are "
-            f"measured (docs/clinician.md, decision study); not checked under model misfit")
+    return (f"  P(deficit) is NOT calibrated: {dec.p_label()}. On simulated patients of this model the model's own "
+            f"P was conservative between 0.2 and 0.6; the rule's sensitivity and false alarms are measured there "
+            f"(docs/clinician.md, decision study); not checked under model misfit")
 
 
 def deficit_lines(session) -> list[str]:
