@@ -12,6 +12,7 @@ import pandas as pd
 import pytest
 
 from neckstrength.session import Entry, InputError, Session, SessionOptions, run_interactive
+from neckstrength.session.log import release
 
 ROOT = Path(__file__).resolve().parents[2]
 CFG = str(ROOT / "config" / "config.ci.yaml")
@@ -131,3 +132,17 @@ def test_joint_session_state_carries_the_decision_and_resumes(tmp_path):
     assert dec["settings"]["prevalence"] > 0 and dec["settings_label"] and "heuristic" in dec["label"]
     assert "\n".join(dec["text"]) in st["screen"]
     assert Session.resume(out, threads=1).snapshot() == st
+
+
+def test_undo_and_remeasure_with_another_force_proposes_afresh(tmp_path):
+    """Undo, then the same test with another force: the next proposal is computed from the new force (as a resume
+    computes it), not reused from the undone measurement's."""
+    s = Session.create(tmp_path / "u", _opts(tmp_path))
+    s.tell("150")
+    s.tell("133")
+    s.propose()                     # the proposal after 133 N is computed (the screen shows it)
+    s.undo()
+    s.tell("80")
+    st = s.snapshot()
+    release(tmp_path / "u")
+    assert Session.resume(tmp_path / "u").snapshot() == st

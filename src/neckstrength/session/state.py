@@ -402,6 +402,9 @@ class Session:
             self.state.undo()
             if getattr(self, "decision", None) is not None:
                 self.decision.undo()
+            # proposals cached for tested sets with this measurement were computed from its force: a re-measurement
+            # of the same test with another force must not reuse them (a resume would compute them afresh)
+            self._proposals = {k: v for k, v in self._proposals.items() if r["direction"] not in k}
         else:
             self.skipped.remove(r["direction"])
         return r
