@@ -6,6 +6,7 @@ Verbs:
   max-wrench     maximum wrench of a model in every test direction (baseline or given strengths)
   validate       check a measurement / activation / test-point file and report the first problem
   session        clinician-in-the-loop session: start, resume, replay (docs/session.md)
+  app            the clinician's session in a browser and its ask/tell HTTP API (docs/app.md)
   diagnose       sim-to-real gap diagnosis of a data set: where, which effect, how far (docs/gap_diagnosis.md)
   import-trials  a lab's trial table -> max-force / activation tables + quality report (docs/trials.md)
   estimate       strengths of one participant from a table or trials: Algorithm 4, ABC-SMC or joint estimator
@@ -360,6 +361,13 @@ def _cmd_session(args) -> int:
         return 2
 
 
+def _cmd_app(args) -> int:
+    from neckstrength.app import serve
+
+    return serve(root=args.root, config=args.config, host=args.host, port=args.port, token=args.token,
+                 open_browser=not args.no_browser, threads=args.threads, cache=args.cache)
+
+
 def _cmd_diagnose(args) -> int:
     from neckstrength.gap.run import DATASET_FILES, FIGURES
 
@@ -440,6 +448,9 @@ COMMANDS = {
                        "neckstrength session replay --csv measurements.csv --out sessions/P01-replay"),
     "session resume": ("Continue a session from its log (session.log.jsonl) in the same state, e.g. after a crash.",
                        "neckstrength session resume --out sessions/P01"),
+    "app": ("The clinician's session in a browser (start, test, live estimate, summary, export) and its ask/tell "
+            "HTTP API, on this machine only; prints the URL with its access token (docs/app.md).",
+            "neckstrength app --root sessions"),
     "diagnose": ("Sim-to-real gap diagnosis of one data set of maximum forces: where the model misses, which "
                  "unmodelled effect explains it (named only with a calibrated p-value), how far the held-out gap "
                  "shrinks (docs/gap_diagnosis.md).",
@@ -569,6 +580,21 @@ def build_parser() -> argparse.ArgumentParser:
                        help="threads of the joint posterior's solver (directions solved concurrently; the numbers do "
                             "not depend on it); default 0 = every core")
     d.set_defaults(func=_cmd_session)
+
+    d = sub.add_parser("app", **_doc("app"), help="the session in a browser, and its ask/tell HTTP API")
+    d.add_argument("--root", default="sessions", help="folder of the session folders (default sessions)")
+    d.add_argument("--config", default="config/config.yaml",
+                   help="settings and test directions of new sessions (default config/config.yaml)")
+    d.add_argument("--host", default="127.0.0.1",
+                   help="address to bind (default 127.0.0.1: this machine only; another address is reachable from "
+                        "the network, protected by the token alone)")
+    d.add_argument("--port", type=int, default=0, help="port (default 0: a free port)")
+    d.add_argument("--token", default=None, help="access token (default: a new random one, printed)")
+    d.add_argument("--no-browser", action="store_true", help="do not open a browser (print the URL only)")
+    d.add_argument("--cache", default=None, help="candidate-set cache folder (default results/session_cache)")
+    d.add_argument("--threads", type=int, default=0,
+                   help="threads of the joint posterior's solver (the numbers do not depend on it); 0 = every core")
+    d.set_defaults(func=_cmd_app)
 
     d = sub.add_parser("diagnose", **_doc("diagnose"), help="sim-to-real gap diagnosis of one data set (forces only)")
     d.add_argument("--config", default="config/config.yaml",
