@@ -344,7 +344,7 @@ def create_app(root: str | Path = "sessions", token: str = "", config: str = "co
     def render_report(st: dict) -> str:
         png = Path(reg.folder(st["session"])) / "summary.png"
         img = base64.b64encode(png.read_bytes()).decode() if png.is_file() else None
-        return pages.get_template("report.html").render(st=st, img=img, now=time.strftime("%Y-%m-%d %H:%M"),
+        return pages.get_template("one_page_report.html").render(st=st, img=img, now=time.strftime("%Y-%m-%d %H:%M"),
                                                         fmt=_fmt)
 
     @app.get("/", response_class=HTMLResponse, include_in_schema=False)
