@@ -6,6 +6,7 @@ Matplotlib with the non-interactive Agg backend (no display needed). Topic figur
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -29,7 +30,7 @@ PLANE_TITLES = {
 
 def radar_grid(directions: pd.DataFrame, dashed: Mapping[str, pd.Series], solid: Mapping[str, pd.Series],
                out: str | Path, title: str = "", rmax: float | None = None) -> None:
-    """3x3 grid of radar plots (Fig. 4.2 layout): dashed traces (e.g. participants) and solid red traces."""
+    """Radar plots by plane (Fig. 4.2 layout): dashed traces (e.g. participants) and solid red traces."""
     series = [(k, v, {"ls": "--", "lw": 1}) for k, v in dashed.items()]
     series += [(k, v, {"ls": "-", "lw": 2, "color": "red"}) for k, v in solid.items()]
     radar_grid_series(directions, series, out, title, rmax)
@@ -37,41 +38,62 @@ def radar_grid(directions: pd.DataFrame, dashed: Mapping[str, pd.Series], solid:
 
 def radar_grid_series(directions: pd.DataFrame, series: Sequence[tuple[str, pd.Series, dict]], out: str | Path,
                       title: str = "", rmax: float | None = None, rlabel: str = "") -> None:
-    """3x3 grid of radar plots, one polar axis per plane of Fig. 4.2.
+    """Radar plots of the test directions, one polar axis per plane of Fig. 4.2 (3x3 when every plane has values).
 
     ``series``: (label, values indexed by direction name, matplotlib kwargs). Directions are placed at
     their polar angle within each plane (sagittal: x right / y up; transverse: x right / z up;
-    coronal: z right / y up).
+    coronal: z right / y up). A plane in which no series has values at 3 or more angles (a planar model's tests
+    lie in the mid-sagittal plane; elsewhere they fall on one line) gets no panel, and the title says how many
+    planes were left out; the legend sits below the panels, never over one.
     """
-    fig, axes = plt.subplots(3, 3, figsize=(12, 12), subplot_kw={"projection": "polar"})
-    allvals = [np.nanmax(s.to_numpy(float)) for _, s, _ in series if len(s)]
-    rmax = rmax or (1.1 * max(allvals) if allvals and max(allvals) > 0 else 1.0)
     recs = directions.to_dict("records")
-    for r_i, row in enumerate(PLANE_GRID):
-        for c_i, plane in enumerate(row):
-            ax = axes[r_i, c_i]
-            members = [r for r in recs if plane in str(r["planes"]).split(";")]
-            members.sort(key=lambda r: np.mod(plane_angle(r, plane), 2 * np.pi))
-            names = [r["name"] for r in members]
-            ax.set_title(PLANE_TITLES[plane], fontsize=10, pad=14)
-            if not names:
-                continue
-            th = np.mod(np.array([plane_angle(r, plane) for r in members]), 2 * np.pi)
-            closed = np.r_[th, th[:1]]
-            for label, s, kw in series:
-                vals = np.array([s.get(n, np.nan) for n in names], float)
-                ax.plot(closed, np.r_[vals, vals[:1]], label=label if (r_i, c_i) == (0, 0) else None, **kw)
-            ax.set_xticks(th)
-            ax.set_xticklabels(names, fontsize=7)
-            ax.set_xlim(0, 2 * np.pi)
-            ax.set_ylim(0, rmax)
-            ax.set_rlabel_position(250)
-            ax.tick_params(axis="y", labelsize=6)
+    panels = []
+    for plane in (p for row in PLANE_GRID for p in row):
+        members = [r for r in recs if plane in str(r["planes"]).split(";")]
+        members.sort(key=lambda r: np.mod(plane_angle(r, plane), 2 * np.pi))
+        names = [r["name"] for r in members]
+        th = np.round(np.mod([plane_angle(r, plane) for r in members], 2 * np.pi), 3)
+        for _, s, _ in series:
+            ok = np.isfinite(np.array([s.get(n, np.nan) for n in names], float))
+            if len(set(th[ok])) >= 3:                   # a polygon, not a line through the centre
+                panels.append((plane, members, names))
+                break
+    if not panels:
+        raise ValueError(f"radar plot {Path(out).name}: no series has a value in any test direction")
+    ncol = 3 if len(panels) > 4 else min(len(panels), 2)
+    nrow = int(np.ceil(len(panels) / ncol))
+    width = max(4.0 * ncol, 6.5)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(width, 4 * nrow + 0.8), subplot_kw={"projection": "polar"},
+                             squeeze=False)
+    allvals = [np.nanmax(s.to_numpy(float)) for _, s, _ in series if np.isfinite(s.to_numpy(float)).any()]
+    rmax = rmax or (1.1 * max(allvals) if allvals and max(allvals) > 0 else 1.0)
+    for k, (plane, members, names) in enumerate(panels):
+        ax = axes.ravel()[k]
+        ax.set_title(PLANE_TITLES[plane], fontsize=10, pad=14)
+        th = np.mod(np.array([plane_angle(r, plane) for r in members]), 2 * np.pi)
+        closed = np.r_[th, th[:1]]
+        for label, s, kw in series:
+            vals = np.array([s.get(n, np.nan) for n in names], float)
+            ax.plot(closed, np.r_[vals, vals[:1]], label=label, **kw)
+        ax.set_xticks(th)
+        ax.set_xticklabels(names, fontsize=7)
+        ax.set_xlim(0, 2 * np.pi)
+        ax.set_ylim(0, rmax)
+        ax.set_rlabel_position(250)
+        ax.tick_params(axis="y", labelsize=6)
+    for ax in axes.ravel()[len(panels):]:
+        ax.set_visible(False)
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=min(max(len(labels), 1), 6), fontsize=8)
-    if title:
-        fig.suptitle(title + (f" [{rlabel}]" if rlabel else ""))
-    fig.tight_layout(rect=(0, 0.04, 1, 0.97))
+    if handles:
+        fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 3 if ncol < 3 else 6), fontsize=8)
+    omitted = 9 - len(panels)
+    text = title + (f" [{rlabel}]" if rlabel else "")
+    if omitted:
+        text += f" ({omitted} of the 9 planes, with values at fewer than 3 angles, not shown)"
+    if text:
+        fig.suptitle(textwrap.fill(text, int(width * 11)), fontsize=11 if ncol == 3 else 10)
+    legend_h = 0.35 * int(np.ceil(len(labels) / (3 if ncol < 3 else 6))) + 0.3 if handles else 0.2
+    fig.tight_layout(rect=(0, legend_h / (4 * nrow + 0.8), 1, 1))
     _save(fig, out)
 
 

@@ -12,32 +12,57 @@ import pandas as pd  # noqa: E402
 from neckstrength.plotting import _save
 
 
-def abc_traces(history: pd.DataFrame, truth: pd.Series, base: pd.Series, out: str | Path, title: str) -> None:
-    """Per-parameter estimate traces (Figs. 5.7 / 5.8 / 5.11 / 5.13)."""
+def abc_traces(history: pd.DataFrame, truth: pd.Series, base: pd.Series, out: str | Path, title: str,
+               converged: bool | None = None, iterations: int | None = None, D_fc: float | None = None,
+               eps_D: float | None = None) -> None:
+    """Per-parameter estimate traces (Figs. 5.7 / 5.8 / 5.11 / 5.13).
+
+    The legend (below the panels) lists the true strength only when ``truth`` has a value (simulated data sets; a
+    participant has no truth). With ``converged`` given, the title says whether the run converged, and after how
+    many iterations with which ``D(f_c)``; a run stopped at maxIter says NOT CONVERGED.
+    """
     params = list(dict.fromkeys(history["parameter"]))
     ncol = 4 if len(params) > 8 else min(len(params), 4)
     nrow = int(np.ceil(len(params) / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol, 2.6 * nrow), squeeze=False)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol, 2.6 * nrow + 1.0), squeeze=False)
+    has_truth = False
     for k, p in enumerate(params):
         ax = axes[k // ncol, k % ncol]
         h = history[history["parameter"] == p]
-        ax.plot(h["iteration"], h["f_c"], "k-", lw=1.5)
-        ax.plot(h["iteration"], h["f_low"], "b--", lw=0.8)
+        ax.plot(h["iteration"], h["f_c"], "k-", lw=1.5, label="f_c (estimate)")
+        ax.plot(h["iteration"], h["f_low"], "b--", lw=0.8,
+                label="f_c(1 -+ sigma_c): sampling width, a heuristic, not an interval")
         ax.plot(h["iteration"], h["f_high"], "b--", lw=0.8)
         t = truth.get(p, np.nan)
         if np.isfinite(t):
-            ax.axhline(t, color="red", ls="--", lw=1)
+            has_truth = True
+            ax.axhline(t, color="red", ls="--", lw=1, label="true strength (simulated data set)")
         b = base.get(p, np.nan)
         if np.isfinite(b):
-            ax.plot([0], [b], "kx")
+            ax.plot([0], [b], "kx", label="f'_base (before the Eq. 5.3 scaling)")
         ax.set_title(p, fontsize=9)
         ax.tick_params(labelsize=7)
+        if k + ncol >= len(params):                     # the lowest panel of its column
+            ax.set_xlabel("iteration", fontsize=8)
     for k in range(len(params), nrow * ncol):
         axes[k // ncol, k % ncol].axis("off")
-    fig.suptitle(title, fontsize=10)
-    fig.supxlabel("iteration")
-    fig.supylabel("strength (N)")
-    fig.tight_layout()
+    handles = {}
+    for ax in axes.ravel():
+        for hd, lb in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(lb, hd)
+    note = None if has_truth else "no true strength: a participant's data set"
+    fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=min(len(handles), 2), fontsize=8,
+               title=note, title_fontsize=8)
+    if converged is not None:
+        d = f", D(f_c) = {D_fc:.3f}" if D_fc is not None else ""
+        n = f" after {iterations} iterations" if iterations is not None else ""
+        status = (f"converged{n}{d}" if converged else
+                  f"NOT CONVERGED: stopped{n} (maxIter){d}" + (f", needs every D_k > {eps_D:g}" if eps_D else ""))
+        title = f"{title}\n{status}"
+    fig.suptitle(title, fontsize=10, color="black" if converged is not False else "darkred")
+    fig.supylabel("strength (N)", fontsize=9)
+    legend_in = 0.2 * (int(np.ceil(len(handles) / 2)) + (note is not None)) + 0.25
+    fig.tight_layout(rect=(0, legend_in / fig.get_figheight(), 1, 1))
     _save(fig, out)
 
 

@@ -44,17 +44,18 @@ def fig_postures(summary: pd.DataFrame, ident: pd.DataFrame, picks: pd.DataFrame
     fig, axes = plt.subplots(1, len(ts) + 1, figsize=(5.2 * (len(ts) + 1), 4.6))
     x = np.arange(len(groups))
     for ax, t in zip(axes, ts):
+        counts = []
         for k, (arm, col) in enumerate((("neutral", "tab:blue"), ("postures", "tab:orange"))):
             s = summary[(summary["t"] == t) & (summary["arm"] == arm)].groupby("group")[["rel_error", "rel_sd"]].mean()
             s = s.reindex(groups)
-            n_tests = int(summary[(summary["t"] == t) & (summary["arm"] == arm)]["n_tests"].max())
-            ax.bar(x + (k - 0.5) * 0.4, s["rel_error"], 0.4, color=col, label=f"{arm} ({n_tests} tests): error")
-            ax.plot(x + (k - 0.5) * 0.4, s["rel_sd"], "k_", ms=9, mew=2, label="posterior sd" if k == 0 else None)
+            counts.append(f"{arm} {int(summary[(summary['t'] == t) & (summary['arm'] == arm)]['n_tests'].max())}")
+            ax.bar(x + (k - 0.5) * 0.4, s["rel_error"], 0.4, color=col, label=f"{arm}: error |E - f_a| / f_a")
+            ax.plot(x + (k - 0.5) * 0.4, s["rel_sd"], "k_", ms=9, mew=2,
+                    label="posterior sd / f_a (heuristic width)" if k == 0 else None)
         ax.set_xticks(x)
         ax.set_xticklabels(groups, rotation=60, ha="right", fontsize=8)
         ax.set_ylabel("|E - f_a| / f_a (bars), sd / f_a (marks)")
-        ax.set_title(f"{model_name}, t = {t}")
-        ax.legend(fontsize=7)
+        ax.set_title(f"{model_name}, t = {t} (tests: {', '.join(counts)})", fontsize=10)
     ax = axes[-1]
     p = picks[picks["arm"] == "postures"]
     tab = pd.crosstab(p["t"], p["posture"], normalize="index")
@@ -65,8 +66,11 @@ def fig_postures(summary: pd.DataFrame, ident: pd.DataFrame, picks: pd.DataFrame
     ax.set_xlabel("test number t")
     ax.set_ylabel("share of participants")
     ax.set_title("posture of the t-th pick (neutral + postures)")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
+    ax.legend(fontsize=7, title="posture", title_fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
+    # the bars' legend below the error panels, the postures' beside the share panel: neither covers a bar
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower left", bbox_to_anchor=(0.02, 0.0), ncol=len(labels), fontsize=8)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
     fig.savefig(out_png, dpi=110)
     plt.close(fig)
 

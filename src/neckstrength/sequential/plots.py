@@ -20,11 +20,22 @@ def _muscle_axes(m: int, ncols: int = 4, size=(3.6, 2.9)):
     return fig, axes.ravel()[:m]
 
 
-def _save(fig, out):
+def _save(fig, out, rect=(0, 0, 1, 1)):
     from neckstrength.plotting import _save as save
 
-    fig.tight_layout()
+    fig.tight_layout(rect=rect)
     save(fig, out)
+
+
+def _legend_below(fig, ax, fontsize: float = 7) -> tuple[float, float, float, float]:
+    """The legend of ``ax`` below the panels (never over one); the rect that leaves room for it."""
+    handles, labels = ax.get_legend_handles_labels()
+    if not handles:
+        return (0, 0, 1, 1)
+    ncol = min(len(labels), 6)
+    fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=fontsize)
+    rows = int(np.ceil(len(labels) / ncol))
+    return (0, (0.22 * rows + 0.15) / fig.get_figheight(), 1, 1)
 
 
 def fig_posteriors(post: pd.DataFrame, est: pd.DataFrame, out, title: str, iterations: Sequence[int] | None = None,
@@ -58,9 +69,10 @@ def fig_posteriors(post: pd.DataFrame, est: pd.DataFrame, out, title: str, itera
         ax.set_title(n, fontsize=10)
         ax.set_xlabel("strength (N)", fontsize=8)
         ax.tick_params(labelsize=7)
-    axes[0].legend(fontsize=6)
+    axes[0].plot([], [], color="grey", ls="--", lw=0.8, label="dashed: expected value E")
+    rect = _legend_below(fig, axes[0])
     fig.suptitle(title, fontsize=10)
-    _save(fig, out)
+    _save(fig, out, rect)
 
 
 def fig_iterations(it: pd.DataFrame, out, title: str) -> None:

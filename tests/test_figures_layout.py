@@ -1,0 +1,127 @@
+"""Figures that misled (issue 33), checked on small synthetic inputs: no empty panel, no legend over a panel, no
+promise of a truth line where there is no truth, and a run that did not converge says so in its title."""
+
+from pathlib import Path
+
+import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+import pytest
+
+from neckstrength.abc.plots import abc_traces
+from neckstrength.model.geometry import PLANE_GRID
+from neckstrength.pipeline.postures import fig_postures
+from neckstrength.plotting import radar_grid_series
+from neckstrength.sequential.plots import fig_posteriors
+
+matplotlib.use("Agg")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def figures(monkeypatch):
+    """The figures the plotting functions would close, kept open for inspection."""
+    kept = []
+    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
+    yield kept
+    monkeypatch.undo()
+    for fig in kept:
+        plt.close(fig)
+
+
+def _overlaps(fig) -> list[str]:
+    """Legends whose box overlaps the box of a visible axes (its plotting area)."""
+    fig.canvas.draw()
+    legends = list(fig.legends) + [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+    bad = []
+    for leg in legends:
+        lb = leg.get_window_extent()
+        for ax in fig.axes:
+            if ax.get_visible() and ax.axison and lb.overlaps(ax.get_window_extent()):
+                bad.append(f"legend {[t.get_text() for t in leg.get_texts()][:3]} over panel '{ax.get_title()}'")
+    return bad
+
+
+@pytest.fixture(scope="module")
+def directions():
+    import os
+
+    from neckstrength.config import build_directions, load_config
+
+    cwd = os.getcwd()
+    os.chdir(ROOT)
+    try:
+        return build_directions(load_config(ROOT / "config" / "config.ci.yaml"))
+    finally:
+        os.chdir(cwd)
+
+
+def _history(params, iters=20, seed=1):
+    rng = np.random.default_rng(seed)
+    rows = []
+    for p in params:
+        for it in range(iters + 1):
+            f = 200 + 50 * np.exp(-it / 5) + rng.normal(0, 3)
+            rows.append({"parameter": p, "iteration": it, "f_c": f, "f_low": 0.8 * f, "f_high": 1.2 * f})
+    return pd.DataFrame(rows)
+
+
+def test_traces_of_a_participant_promise_no_truth_and_say_not_converged(tmp_path, figures):
+    params = ["TC-E", "TC-F", "TS-B", "TS-E", "TS-F", "CS-E", "CS-F"]
+    base = pd.Series(250.0, index=params)
+    abc_traces(_history(params), pd.Series(np.nan, index=params), base, tmp_path / "p.png", "S003",
+               converged=False, iterations=20, D_fc=0.51, eps_D=0.95)
+    fig = figures[-1]
+    labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+    assert not any("true" in lb for lb in labels) and "participant" in fig.legends[0].get_title().get_text()
+    assert "NOT CONVERGED" in fig._suptitle.get_text() and "0.510" in fig._suptitle.get_text()
+    assert not _overlaps(fig)
+    abc_traces(_history(params), pd.Series(210.0, index=params), base, tmp_path / "s.png", "norm",
+               converged=True, iterations=6, D_fc=0.96, eps_D=0.95)
+    fig = figures[-1]
+    assert any("true strength" in t.get_text() for t in fig.legends[0].get_texts())
+    assert fig._suptitle.get_text().endswith("converged after 6 iterations, D(f_c) = 0.960")
+    assert (tmp_path / "p.png").stat().st_size > 10_000
+
+
+def test_radar_of_a_planar_model_has_no_empty_panel(tmp_path, figures, directions):
+    p2m7 = ["forehead", "noseBelow", "chinFront", "chinUnder", "backLow", "back", "backHigh"]
+    vals = pd.Series(np.linspace(100, 300, 7), index=p2m7)
+    radar_grid_series(directions, [("measured", vals, {"color": "blue"}), ("model", 0.9 * vals, {})],
+                      tmp_path / "r.png", "fit", rlabel="N")
+    fig = figures[-1]
+    shown = [ax for ax in fig.axes if ax.get_visible()]
+    assert [ax.get_title() for ax in shown] == ["mid sagittal"]
+    assert "8 of the 9 planes" in fig._suptitle.get_text()
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["measured", "model"]   # not an empty box
+    assert not _overlaps(fig)
+    everywhere = pd.Series(150.0, index=directions["name"])
+    radar_grid_series(directions, [("all", everywhere, {})], tmp_path / "a.png", "all")
+    assert sum(ax.get_visible() for ax in figures[-1].axes) == sum(len(r) for r in PLANE_GRID) == 9
+    with pytest.raises(ValueError, match="no series has a value"):
+        radar_grid_series(directions, [("none", pd.Series(dtype=float), {})], tmp_path / "n.png")
+
+
+def test_posteriors_legend_below_the_panels(tmp_path, figures):
+    names = [f"m{i}" for i in range(8)]                    # a full grid: no free slot to hide a legend in
+    f = np.linspace(0, 400, 41)
+    post = pd.DataFrame([{"muscle": n, "iteration": t, "f": x, "density": np.exp(-((x - 200) / (90 - 10 * t)) ** 2)}
+                         for n in names for t in range(4) for x in f])
+    est = pd.DataFrame({"muscle": names, "f_actual": 210.0})
+    fig_posteriors(post, est, tmp_path / "p.png", "Fig. 6.4a")
+    fig = figures[-1]
+    assert fig.legends and not _overlaps(fig)
+
+
+def test_postures_legends_cover_no_bar(tmp_path, figures):
+    groups = ["LC", "Lcap", "SCM", "mf", "trap"]
+    summary = pd.DataFrame([{"t": t, "arm": arm, "group": g, "rel_error": 0.1 + 0.05 * k, "rel_sd": 0.2,
+                             "n_tests": t} for t in (5, 10) for arm in ("neutral", "postures")
+                            for k, g in enumerate(groups)])
+    picks = pd.DataFrame([{"arm": "postures", "t": t, "posture": ["ext20", "flex20", "neutral"][(t + i) % 3]}
+                          for t in range(1, 11) for i in range(4)])
+    fig_postures(summary, pd.DataFrame(), picks, "p3m12", tmp_path / "f.png")
+    fig = figures[-1]
+    assert len(fig.legends) == 1 and not _overlaps(fig)
+    assert "tests: neutral 10, postures 10" in fig.axes[1].get_title()
