@@ -22,6 +22,7 @@ import os
 import shutil
 import sys
 import textwrap
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -175,15 +176,14 @@ def _direction_names(config_path) -> list[str]:
 
 
 def _trial_settings(args, cfg):
-    from neckstrength.trials import ImportSettings
+    """The config's ``trials.settings`` with the command line's options on top."""
+    from neckstrength.config import trial_settings
 
-    settings = dict((cfg.get("trials") or {}).get("settings") or {})
-    for key, val in (("angle_deg", getattr(args, "angle_deg", None)), ("ratio_tol", getattr(args, "ratio_tol", None)),
-                     ("mismatch_action", getattr(args, "mismatch", None)),
-                     ("pad_to_c0_m", getattr(args, "pad_offset", None))):
-        if val is not None:
-            settings[key] = val
-    return ImportSettings.from_mapping(settings)
+    pad = getattr(args, "pad_offset", None)
+    over = {"angle_deg": getattr(args, "angle_deg", None), "ratio_tol": getattr(args, "ratio_tol", None),
+            "mismatch_action": getattr(args, "mismatch", None),
+            "pad_to_c0_m": None if pad is None else tuple(float(x) for x in pad)}
+    return replace(trial_settings(cfg), **{k: v for k, v in over.items() if v is not None})
 
 
 def _cmd_validate_trials(args) -> int:
@@ -268,10 +268,15 @@ def _estimate_into(args, cfg, out: Path, measurements, activations) -> int:
     if measurements is None:
         print("error: give --measurements (a Table A.2-layout file) or --trials", file=sys.stderr)
         return 2
+    from neckstrength.config import build_directions, estimate_settings, full_model_from_config, model_from_config
+
+    settings = estimate_settings(cfg, args.model).with_options(seed=args.seed, emg=args.emg, max_iter=args.max_iter,
+                                                               criterion=args.criterion)
+    model = model_from_config(full_model_from_config(cfg), cfg, args.model)
     with contextlib.redirect_stdout(sys.stderr):
-        s = run_estimate(cfg, args.model, args.participant, measurements, out, args.method, activations, args.seed,
-                         args.emg, args.max_iter, args.threads, args.criterion,
-                         log=lambda m: print(m, file=sys.stderr, flush=True), figures=not args.no_figures)
+        s = run_estimate(settings, model, build_directions(cfg), args.participant, measurements, out, args.method,
+                         activations, args.threads, log=lambda m: print(m, file=sys.stderr, flush=True),
+                         figures=not args.no_figures)
     head = f"{args.method} estimate, model {args.model}, participant {args.participant}, seed {s['seed']}"
     if "iterations" in s:
         head += f": {s['iterations']} iterations, converged {s['converged']}, D(f_c) = {s['D_fc']:.3f}"
@@ -371,12 +376,10 @@ def _cmd_app(args) -> int:
 def _cmd_diagnose(args) -> int:
     from neckstrength.gap.run import DATASET_FILES, FIGURES
 
+    from neckstrength.config import gap_measurements_path, gap_models
+
     cfg = load_config(args.config)
-    if args.measurements:
-        cfg["gap"]["measurements"] = args.measurements
-    if args.effects:
-        cfg["gap"]["effects"] = [e.strip() for e in args.effects.split(",") if e.strip()]
-    model = args.model or cfg["gap"]["models"][0]
+    model = args.model or gap_models(cfg)[0]
     out = Path(args.out or f"results/gap/{model}/{args.dataset}")
     outputs = {k: out / f"{k}.csv" for k in DATASET_FILES}
     outputs.update({f"fig_{k}": out / f"fig_{k}.png" for k in FIGURES})
@@ -384,7 +387,7 @@ def _cmd_diagnose(args) -> int:
     if args.extra_trials:
         outputs["update"] = out / "update.csv"
     created = _check_out(out, args.force, [args.config, args.measurements, args.extra_trials,
-                                           cfg["gap"].get("measurements") or cfg["data"]["measurements"]])
+                                           args.measurements or gap_measurements_path(cfg)])
     with _removed_on_failure(created) as done:
         rc = _diagnose_into(args, cfg, model, out, outputs)
         done["ok"] = rc == 0
@@ -401,18 +404,22 @@ def _diagnose_into(args, cfg, model, out, outputs) -> int:
         gap_settings_text,
         gap_withheld_activations,
         head_from_config,
+        plane_bands,
     )
     from neckstrength.gap.run import run_diagnosis
 
     try:
         directions = build_directions(cfg)
         ctx = gap_context(cfg, model, directions)
-        data = gap_blind_dataset(cfg, ctx, directions, args.dataset)
+        data = gap_blind_dataset(cfg, ctx, directions, args.dataset, measurements=args.measurements)
         settings = diagnosis_settings(cfg)
+        effects = tuple(e.strip() for e in (args.effects or "").split(",") if e.strip())
+        if effects:
+            settings = replace(settings, effects=effects)
         s = run_diagnosis(ctx, data, settings, directions,
                           gap_withheld_activations(cfg, ctx, args.dataset), outputs,
                           gap_settings_text(cfg, settings), model, discriminate_settings(cfg),
-                          head_from_config(cfg), cfg["geometry"]["plane_bands"], max(1, args.workers),
+                          head_from_config(cfg), plane_bands(cfg), max(1, args.workers),
                           extra_trials=args.extra_trials)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import difflib
 import json
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
@@ -22,7 +22,13 @@ import pandas as pd
 import yaml
 
 from neckstrength.abc.algorithm4 import ABCSettings
-from neckstrength.estimation.datasets import build_dataset, model_directions_table, participant_dataset
+from neckstrength.abc.smc import SMCSettings
+from neckstrength.estimation.datasets import (
+    DatasetSettings,
+    load_dataset,
+    model_directions_table,
+    participant_dataset,
+)
 from neckstrength.gap.benchmark import BenchmarkSettings
 from neckstrength.gap.diagnose import BlindData, DiagnosisSettings
 from neckstrength.gap.discriminate import DiscriminateSettings
@@ -305,12 +311,64 @@ def chapter4_factors(config: Mapping) -> list[float]:
     return sorted(set(np.round(np.r_[c["factors"], sweep], 6).tolist()))
 
 
+def cohort_spec(config: Mapping):
+    """``chapter3.synthetic`` (with ``chapter3.reliability`` and ``loa_multiplier``) as
+    :class:`neckstrength.mfi.synthetic.CohortSpec`, the SYNTHETIC cohort's design and generative assumptions."""
+    from neckstrength.mfi.synthetic import CohortSpec
+
+    c = config["chapter3"]
+    s = c["synthetic"]
+    cov, re, rel = s["covariate_effects"], s["random_effects"], c["reliability"]
+    return CohortSpec(n_per_group=int(s["n_per_group"]),
+                      reliability_participants=dict(s["reliability_participants"]),
+                      age_per_year=float(cov["age_per_year"]), bmi_per_unit=float(cov["bmi_per_unit"]),
+                      female=float(cov["female"]), level_slope=float(re["level_slope"]),
+                      quartile_slope=float(re["quartile_slope"]), side_share=float(re["side_share"]),
+                      intra_loa=tuple(s["intra_loa"]), inter_loa=tuple(s["inter_loa"]),
+                      loa_multiplier=float(c["loa_multiplier"]), rater=str(rel["rater"]),
+                      second_rater=str(rel["second_rater"]))
+
+
 def abc_settings(config: Mapping, model_name: str) -> ABCSettings:
     c = config["chapter5"]
     per = c["settings"].get(model_name, {})
     return ABCSettings(sigma0=per.get("sigma0", 0.2), epsilon=c["epsilon"], q=c["q"], eps_D=c["eps_D"],
                        max_iter=per.get("max_iter", 20), sigma_min=c["sigma_clip"][0], sigma_max=c["sigma_clip"][1],
                        tie_sides=per.get("tie_sides", False), store_candidates=c.get("store_candidates", 3000))
+
+
+def smc_settings(config: Mapping) -> SMCSettings:
+    """``chapter5.smc`` (ABC-SMC beside Algorithm 4); ``budget`` is the cap ``max_budget`` (the run uses Algorithm 4's
+    budget when smaller)."""
+    c = config["chapter5"]
+    sc = c["smc"]
+    return SMCSettings(n_particles=sc["n_particles"], budget=sc["max_budget"], prior_sigma=sc["prior_sigma"],
+                       quantile=sc["quantile"], epsilon=c["epsilon"])
+
+
+def dataset_settings(config: Mapping, section: str, model_name: str) -> DatasetSettings:
+    """How ``section`` (``chapter5`` or ``chapter6``) builds a data set of ``model_name`` (:func:`load_dataset`)."""
+    c = config[section]
+    return DatasetSettings(emg_groups=tuple(c["emg_groups"].get(model_name, [])),
+                           simulated_emg=bool(c["simulated_emg"]), simulated_emg_band=float(c["simulated_emg_band"]),
+                           participant_emg=str(c["participant_emg"]),
+                           participant_emg_band=float(c["participant_emg_band"]))
+
+
+def estimate_settings(config: Mapping, model_name: str):
+    """:class:`neckstrength.estimate.EstimateSettings` of ``model_name``: Algorithm 4 and ABC-SMC from ``chapter5``,
+    the joint estimator from ``chapter6`` (its ``joint.criteria`` and ``joint.use_emg``), the deficit decision from
+    ``clinician.decision``, the seed."""
+    from neckstrength.estimate import EstimateSettings
+
+    return EstimateSettings(seed=int(config["seed"]), bootstrap_direction=str(config["chapter5"]["bootstrap_direction"]),
+                            thesis_dir=str(config["data"]["thesis_dir"]), abc=abc_settings(config, model_name),
+                            smc=smc_settings(config), joint=joint_settings(config),
+                            criteria=tuple(config["chapter6"]["joint"]["criteria"]),
+                            use_emg=bool(config["chapter6"]["joint"]["use_emg"]),
+                            data_alg4=dataset_settings(config, "chapter5", model_name),
+                            data_joint=dataset_settings(config, "chapter6", model_name),
+                            decision=decision_settings(config))
 
 
 def diagnosis_settings(config: Mapping, effects: Sequence[str] | None = None,
@@ -498,6 +556,23 @@ def decision_study_settings(config: Mapping, model_name: str):
     return study, n_cand
 
 
+def session_settings(config: Mapping, model_name: str):
+    """:class:`neckstrength.session.settings.SessionSettings` of a clinician session of ``model_name``."""
+    from neckstrength.session.settings import SessionSettings
+
+    per = session_defaults(config, model_name)
+    n = per.get("n_candidates")
+    return SessionSettings(seed=int(config["seed"]), sequential=chapter6_settings(config, model_name),
+                           joint=joint_settings(config), deficit=deficit_definition(config),
+                           decision=decision_settings(config),
+                           gain_frac=float(config["chapter6"]["stop"]["gain_frac"]),
+                           criterion=str(per.get("criterion", "thesis")), n_candidates=None if n is None else int(n),
+                           postures=tuple(config["postures"]["postures"]),
+                           force_length=str(config["postures"]["force_length"]),
+                           model_dir=str(config["data"]["model_dir"]),
+                           test_point_spec=config["geometry"]["test_point_spec"])
+
+
 def session_defaults(config: Mapping, model_name: str) -> dict:
     """``clinician.session.<model>``: the clinician session's posterior ('joint' or 'marginal', the thesis's
     scheme), criterion and candidate count for ``model_name`` (empty: the thesis's scheme with chapter6 sizes)."""
@@ -532,18 +607,38 @@ def _gap_posture_tables(config: Mapping) -> dict | None:
         return None
 
 
+def gap_models(config: Mapping) -> list[str]:
+    """``gap.models``: the models the gap diagnosis runs on (the first is ``neckstrength diagnose``'s default)."""
+    return list(config["gap"]["models"])
+
+
+def plane_bands(config: Mapping) -> dict:
+    """``geometry.plane_bands``: the elevation and azimuth bands that assign the directions to planes."""
+    return dict(config["geometry"]["plane_bands"])
+
+
+def trial_settings(config: Mapping):
+    """``trials.settings`` as :class:`neckstrength.trials.ImportSettings` (the trial import's windows and frames)."""
+    from neckstrength.trials import ImportSettings
+
+    return ImportSettings.from_mapping(config["trials"]["settings"])
+
+
 def gap_measurements_path(config: Mapping) -> str:
     return config["gap"].get("measurements") or config["data"]["measurements"]
 
 
-def gap_blind_dataset(config: Mapping, ctx: GapContext, directions: pd.DataFrame, dataset: str) -> BlindData:
-    """Forces only: a participant column of the measurement table, or a simulated data set ('norm', 'weak')."""
-    c5 = dict(config["chapter5"], participant_emg="none")
+def gap_blind_dataset(config: Mapping, ctx: GapContext, directions: pd.DataFrame, dataset: str,
+                      measurements: str | Path | None = None) -> BlindData:
+    """Forces only: a participant column of the measurement table (``measurements``, default
+    :func:`gap_measurements_path`), or a simulated data set ('norm', 'weak')."""
+    measurements = measurements or gap_measurements_path(config)
     if dataset in ("norm", "weak"):
-        data = build_dataset(ctx.model, directions, dataset, c5, config["data"]["thesis_dir"],
-                             gap_measurements_path(config), config["data"]["activations"])
+        data = load_dataset(ctx.model, directions, dataset,
+                            replace(dataset_settings(config, "chapter5", ctx.model.name), participant_emg="none"),
+                            config["data"]["thesis_dir"], measurements, config["data"]["activations"])
     else:
-        data = participant_dataset(ctx.model, directions, dataset, gap_measurements_path(config))
+        data = participant_dataset(ctx.model, directions, dataset, measurements)
     if list(data.directions) != list(ctx.directions["name"]):
         raise ValueError("data set directions do not match the model's directions")
     return BlindData(dataset, data.forces)

@@ -1,10 +1,12 @@
 """``neckstrength estimate``: strengths of one participant from a user's table (or trials), no config to write.
 
-:func:`run_estimate` takes the default configuration (``config/config.yaml``; every science setting from its
-``chapter5`` / ``chapter6`` sections), points it at the user's max-force table and calls the very functions the
-pipeline rules call: :func:`neckstrength.pipeline.chapter5.chapter5_estimate` (+ ``chapter5_figures``) for
-Algorithm 4, then ``chapter5_smc`` for ABC-SMC (compared with Algorithm 4 at equal budget, as in the
-pipeline), and :func:`neckstrength.pipeline.chapter6.chapter6_joint` for the joint estimator.
+:func:`run_estimate` takes :class:`EstimateSettings` (built from the default configuration, ``config/config.yaml``,
+by :func:`neckstrength.config.estimate_settings`: every science setting from its ``chapter5`` / ``chapter6``
+sections; command-line options are :meth:`EstimateSettings.with_options`) and calls the very stages the pipeline
+rules call, keeping their results in memory: :func:`neckstrength.abc.stage.run_alg4` (+ ``alg4_figures``) for
+Algorithm 4, then :func:`~neckstrength.abc.stage.run_smc_comparison` for ABC-SMC (compared with Algorithm 4 at equal
+budget, as in the pipeline), and :func:`neckstrength.sequential.joint_estimate.run_joint_estimate` for the joint
+estimator.
 
 Directions without a value for the participant (e.g. no valid trial) are dropped from the fit and listed;
 the Eq. 5.3 bootstrap direction must be present. The seed is the config's unless given, and is recorded in
@@ -13,39 +15,84 @@ the Eq. 5.3 bootstrap direction must be present. The seed is the config's unless
 
 from __future__ import annotations
 
-import copy
 import json
 import time
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import Callable
 
 import numpy as np
 import pandas as pd
 
 from neckstrength import __version__
+from neckstrength.abc.algorithm4 import ABCSettings
+from neckstrength.abc.smc import SMCSettings
+from neckstrength.estimation.datasets import DatasetSettings
 from neckstrength.io import DataValidationError, atomic_write_csv, atomic_write_text, read_measurements
+from neckstrength.model.reduction import ReducedModel
+from neckstrength.sequential.decision import DecisionSettings
+from neckstrength.sequential.joint import JointSettings
 
 METHODS = ("alg4", "smc", "joint")
 
 
-def _prepare_inputs(cfg: Mapping, model_name: str, participant: str, measurements: str | Path,
-                    activations: str | Path | None, out: Path, log: Callable[[str], None]) -> dict:
+@dataclass(frozen=True)
+class EstimateSettings:
+    """Everything that fixes ``neckstrength estimate``'s numbers for one model (built by
+    :func:`neckstrength.config.estimate_settings`)."""
+
+    seed: int                                  # config seed
+    bootstrap_direction: str                   # chapter5.bootstrap_direction (Eq. 5.3)
+    thesis_dir: str                            # data.thesis_dir: the healthy f_a the SMC comparison judges against
+    abc: ABCSettings                           # chapter5 (Algorithm 4 of this model)
+    smc: SMCSettings                           # chapter5.smc (budget = the cap, max_budget)
+    joint: JointSettings                       # chapter6.joint
+    decision: DecisionSettings                 # clinician.decision
+    criteria: tuple[str, ...] = ("joint_eig", "marginal_entropy")   # chapter6.joint.criteria
+    use_emg: bool = False                      # chapter6.joint.use_emg
+    data_alg4: DatasetSettings = DatasetSettings()    # chapter5 (EMG groups and bands of this model)
+    data_joint: DatasetSettings = DatasetSettings()   # chapter6
+
+    @property
+    def emg(self) -> str:
+        """The participant EMG bounds ('none' or 'a3_band')."""
+        return self.data_alg4.participant_emg
+
+    def with_options(self, seed: int | None = None, emg: str | None = None, max_iter: int | None = None,
+                     criterion: str | None = None) -> "EstimateSettings":
+        """The command line's options on top (None: keep the config's): ``--seed``, ``--emg`` (both estimators'
+        participant EMG bounds), ``--max-iter`` (Algorithm 4's cap), ``--criterion`` (the joint estimator's only
+        criterion)."""
+        s = self
+        if seed is not None:
+            s = replace(s, seed=int(seed))
+        if emg is not None:
+            s = replace(s, data_alg4=replace(s.data_alg4, participant_emg=emg),
+                        data_joint=replace(s.data_joint, participant_emg=emg))
+        if max_iter is not None:
+            s = replace(s, abc=replace(s.abc, max_iter=int(max_iter)))
+        if criterion is not None:
+            s = replace(s, criteria=(criterion,))
+        return s
+
+
+def _prepare_inputs(bootstrap_direction: str, model: ReducedModel, d: pd.DataFrame, participant: str,
+                    measurements: str | Path, activations: str | Path | None, out: Path,
+                    log: Callable[[str], None]) -> dict:
     """Directions table (directions with a value only) and the participant's table, written into ``out``."""
-    from neckstrength.config import build_directions, full_model_from_config, model_from_config
     from neckstrength.estimation.datasets import model_directions_table
 
-    d = build_directions(cfg)
     names = list(d["name"])
     meas = read_measurements(measurements, names)
     if participant not in meas.columns:
         raise DataValidationError(measurements, f"no column for participant '{participant}' (columns: "
                                   f"{', '.join(meas.columns)})", field_name=participant)
-    model = model_from_config(full_model_from_config(cfg), cfg, model_name)
+    model_name = model.name
     dm, _ = model_directions_table(model, d)
     col = meas[participant].reindex(names)
     used = [n for n in dm["name"] if np.isfinite(col.get(n, np.nan))]
     dropped = [n for n in dm["name"] if n not in used]
-    boot = cfg["chapter5"]["bootstrap_direction"]
+    boot = bootstrap_direction
     if boot not in used:
         raise DataValidationError(measurements, f"participant {participant} has no value in the bootstrap direction "
                                   f"'{boot}' (Eq. 5.3 scales the baseline there)", field_name=participant)
@@ -77,100 +124,102 @@ def _prepare_inputs(cfg: Mapping, model_name: str, participant: str, measurement
             "dropped": dropped}
 
 
-def run_estimate(config: Mapping, model_name: str, participant: str, measurements: str | Path, out_dir: str | Path,
-                 method: str = "alg4", activations: str | Path | None = None, seed: int | None = None,
-                 emg: str = "none", max_iter: int | None = None, threads: int = 1,
-                 criterion: str = "joint_eig", log: Callable[[str], None] = print, figures: bool = True) -> dict:
-    """Estimate ``participant``'s strengths with ``method`` (alg4, smc, joint); outputs under ``out_dir``.
+def run_estimate(settings: EstimateSettings, model: ReducedModel, directions: pd.DataFrame, participant: str,
+                 measurements: str | Path, out_dir: str | Path, method: str = "alg4",
+                 activations: str | Path | None = None, threads: int = 1, log: Callable[[str], None] = print,
+                 figures: bool = True) -> dict:
+    """Estimate ``participant``'s strengths with ``method`` (alg4, smc, joint) of ``model`` from the tests of
+    ``directions`` (the config's table, :func:`neckstrength.config.build_directions`); outputs under ``out_dir``.
 
-    Returns a summary dict (also written as ``run.json``). Progress goes to ``log``.
+    Returns a summary dict (also written as ``run.json``). Progress goes to ``log`` and the stages' to stdout.
     """
+    from neckstrength.estimation.datasets import load_dataset
+    from neckstrength.io import read_directions
+    from neckstrength.seeds import derive_rng, seed_sequence
+
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, not {method!r}")
     t0 = time.time()
-    cfg = copy.deepcopy(dict(config))
-    if seed is not None:
-        cfg["seed"] = int(seed)
+    s = settings
+    model_name = model.name
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    prep = _prepare_inputs(cfg, model_name, participant, measurements, activations, out, log)
-    cfg["data"] = {**cfg["data"], "measurements": str(prep["measurements"]),
-                   "activations": str(prep["activations"] or cfg["data"]["activations"])}
-    if emg != "none" and prep["activations"] is None:
-        raise ValueError(f"--emg {emg} needs an activation table with a column for {participant}")
-    cfg["chapter5"] = {**cfg["chapter5"], "participant_emg": emg}
-    cfg["chapter6"] = {**cfg["chapter6"], "participant_emg": emg}
-    if max_iter is not None:
-        st = copy.deepcopy(cfg["chapter5"]["settings"])
-        st.setdefault(model_name, {})["max_iter"] = int(max_iter)
-        cfg["chapter5"]["settings"] = st
-    summary = {"participant": participant, "model": model_name, "method": method, "seed": int(cfg["seed"]),
+    prep = _prepare_inputs(s.bootstrap_direction, model, directions, participant, measurements, activations, out, log)
+    if s.emg != "none" and prep["activations"] is None:
+        raise ValueError(f"--emg {s.emg} needs an activation table with a column for {participant}")
+    # the stages read the inputs as the pipeline does: the tables written above
+    d_used = read_directions(prep["directions"])
+    summary = {"participant": participant, "model": model_name, "method": method, "seed": s.seed,
                "measurements": str(measurements), "activations": None if activations is None else str(activations),
-               "emg": emg, "directions_used": prep["used"], "directions_dropped": prep["dropped"],
+               "emg": s.emg, "directions_used": prep["used"], "directions_dropped": prep["dropped"],
                "neckstrength": __version__}
     if method in ("alg4", "smc"):
-        from neckstrength.pipeline.chapter5 import OUTPUTS, chapter5_estimate, chapter5_figures
+        from neckstrength.abc.stage import ALG4_TABLES, alg4_figures, run_alg4, write_alg4
 
-        outputs = {k: out / f"{k}.csv" for k in OUTPUTS}
+        data = load_dataset(model, d_used, participant, s.data_alg4, s.thesis_dir, prep["measurements"],
+                            prep["activations"])
+        outputs = {k: out / f"{k}.csv" for k in ALG4_TABLES}
         outputs["summary"] = out / "summary.json"
-        chapter5_estimate(cfg, model_name, participant, prep["directions"], outputs, threads=threads)
-        figs = {"traces": out / "fig_estimate_traces.png", "dk_hist": out / "fig_dk_hist.png",
-                "d_dir": out / "fig_d_by_direction.png", "parallel": out / "fig_parallel.png",
-                "radar": out / "fig_fit_radar.png"}
+        run = run_alg4(model, data, s.abc, s.bootstrap_direction, derive_rng(s.seed, f"{model_name}/{participant}"),
+                       s.seed, checkpoint=out / ".checkpoint.npz", n_threads=threads)
+        write_alg4(run, outputs)
         if figures:
-            chapter5_figures(cfg, model_name, participant, prep["directions"],
-                              {k: str(v) for k, v in outputs.items()}, figs)
-        meta = json.loads((out / "summary.json").read_text())
-        est = pd.read_csv(outputs["estimate"], comment="#")
-        summary.update({"iterations": meta["iterations"], "converged": meta["converged"], "D_fc": meta["D_fc"],
-                        "scale_a": meta["scale_a"], "estimate": str(outputs["estimate"])})
-        table = est.groupby("parameter", sort=False)[["f_base", "f_0", "f_c", "sigma_c"]].first().reset_index()
+            figs = {"traces": out / "fig_estimate_traces.png", "dk_hist": out / "fig_dk_hist.png",
+                    "d_dir": out / "fig_d_by_direction.png", "parallel": out / "fig_parallel.png",
+                    "radar": out / "fig_fit_radar.png"}
+            alg4_figures(run.tables(), d_used, model_name, participant, figs)
+        res = run.result
+        summary.update({"iterations": res.iterations, "converged": res.converged, "D_fc": res.D_fc,
+                        "scale_a": run.a, "estimate": str(outputs["estimate"])})
+        table = run.estimate.groupby("parameter", sort=False)[["f_base", "f_0", "f_c", "sigma_c"]].first().reset_index()
         if method == "smc":
-            from neckstrength.pipeline.chapter5 import chapter5_smc
+            from neckstrength.abc.stage import run_smc_comparison, write_smc_comparison
 
-            smc = chapter5_smc(cfg, model_name, participant, prep["directions"], outputs["estimate"],
-                                out / "summary.json", out / "smc_vs_alg4.csv", out / "smc_generations.csv")
+            smc = run_smc_comparison(model, data, run.estimate, res.iterations, s.abc, s.smc, s.bootstrap_direction,
+                                     s.thesis_dir, derive_rng(s.seed, f"smc/{model_name}/{participant}"), s.seed)
+            write_smc_comparison(smc, out / "smc_vs_alg4.csv", out / "smc_generations.csv")
             summary["smc"] = str(out / "smc_vs_alg4.csv")
-            table = smc[["muscle", "alg4_f_c", "smc_mean", "smc_q05", "smc_q95"]]
+            table = smc.table[["muscle", "alg4_f_c", "smc_mean", "smc_q05", "smc_q95"]]
     else:
-        from neckstrength.pipeline.chapter6 import chapter6_joint
+        from neckstrength.sequential.joint_estimate import run_joint_estimate, write_joint_estimate
 
-        cfg["chapter6"] = {**cfg["chapter6"], "joint": {**cfg["chapter6"].get("joint", {}), "criteria": [criterion]}}
-        chapter6_joint(cfg, model_name, participant, prep["directions"], out / "joint_iterations.csv",
-                        out / "joint_estimate.csv", out / "joint_summary.json")
-        est = pd.read_csv(out / "joint_estimate.csv", comment="#")
+        data = load_dataset(model, d_used, participant, s.data_joint, s.thesis_dir, prep["measurements"],
+                            prep["activations"])
+        key = f"chapter6/joint/{model_name}/{participant}"
+        joint = run_joint_estimate(model, data, s.joint, s.criteria, s.use_emg, s.seed, key,
+                                   seed_sequence(s.seed, key))
+        write_joint_estimate(joint, out / "joint_iterations.csv", out / "joint_estimate.csv",
+                             out / "joint_summary.json")
         summary["estimate"] = str(out / "joint_estimate.csv")
+        est = joint.estimate
         table = est.drop(columns=[c for c in ("f_true", "rel_diff_true", "criterion") if c in est.columns])
-    summary.update(_decision(cfg, model_name, participant, prep, out, threads, log))
+    summary.update(_decision(s, model, d_used, participant, prep, out, threads, log))
     summary["seconds"] = round(time.time() - t0, 1)
     atomic_write_text(json.dumps(summary, indent=2, default=float), out / "run.json")
     summary["table"] = table
     return summary
 
 
-def _decision(cfg: Mapping, model_name: str, participant: str, prep: dict, out: Path, threads: int,
-              log: Callable[[str], None]) -> dict:
+def _decision(s: EstimateSettings, model: ReducedModel, d_used: pd.DataFrame, participant: str, prep: dict,
+              out: Path, threads: int, log: Callable[[str], None]) -> dict:
     """The deficit decision (issue 31, the session's and the study's code) on the participant's forces, for a model
     with the decision's group; ``decision.csv`` (one row per test) and a summary entry. Empty for other models."""
-    from neckstrength.config import decision_settings, derive_rng, full_model_from_config, joint_settings, \
-        model_from_config
     from neckstrength.estimation.datasets import model_directions_table
-    from neckstrength.pipeline.common import load_directions
+    from neckstrength.seeds import derive_rng
     from neckstrength.sequential.decision import decide
 
-    ds = decision_settings(cfg)
-    model = model_from_config(full_model_from_config(cfg), cfg, model_name)
+    ds = s.decision
+    model_name = model.name
     if not len(ds.group_indices(model.muscle_names)):
         return {}
-    d, U = model_directions_table(model, load_directions(prep["directions"]))
+    d, U = model_directions_table(model, d_used)
     meas = pd.read_csv(prep["measurements"], comment="#").set_index("direction")[participant]
     forces = meas.reindex(list(d["name"])).to_numpy(float)
     t0 = time.time()
     dec, hist = decide(model, list(d["name"]), U, d["force_scale"].to_numpy(float), model.strengths, forces, ds,
-                       joint_settings(cfg), derive_rng(int(cfg["seed"]), f"estimate/{model_name}/decision"),
-                       n_threads=threads)
+                       s.joint, derive_rng(s.seed, f"estimate/{model_name}/decision"), n_threads=threads)
     hdr = [f"deficit decision for {participant} ({model_name}; issue 31, docs/clinician.md): {ds.label()}; "
-           f"{ds.n_candidates} candidates per hypothesis; seed {int(cfg['seed'])}, stream "
+           f"{ds.n_candidates} candidates per hypothesis; seed {s.seed}, stream "
            f"'estimate/{model_name}/decision'",
            "log_bf: log Bayes factor deficit : normal, log_bf_se its Monte Carlo error (heuristic); p_deficit at the "
            "prevalence; decision at p_decide; how well it decides on simulated patients: docs/clinician.md; "

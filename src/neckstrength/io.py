@@ -424,6 +424,12 @@ def read_activations(path: str | Path, directions: Sequence[str] | None = None) 
     return df.set_index("direction")[cols]
 
 
+def read_directions(path: str | Path) -> pd.DataFrame:
+    """A test-direction table this package wrote (``neckstrength directions``, ``config.build_directions``; ``#``
+    comment lines first), as written: one row per direction."""
+    return pd.read_csv(path, comment="#")
+
+
 def atomic_write_csv(df: pd.DataFrame, path: str | Path, header_lines: list[str] | None = None,
                      float_format: str | None = None) -> None:
     path = Path(path)

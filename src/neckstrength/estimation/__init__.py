@@ -9,7 +9,9 @@
 
 from neckstrength.estimation.datasets import (
                                               Dataset,
+                                              DatasetSettings,
                                               build_dataset,
+                                              load_dataset,
                                               model_directions_table,
                                               participant_dataset,
                                               simulated_dataset,
@@ -20,6 +22,7 @@ from neckstrength.estimation.discrepancy import composite_score, data_discrepanc
 from neckstrength.estimation.parameters import free_parameters
 from neckstrength.estimation.scaling import bootstrap_prior, bootstrap_scale
 
-__all__ = ["Dataset", "build_dataset", "model_directions_table", "participant_dataset", "simulated_dataset",
+__all__ = ["Dataset", "DatasetSettings", "build_dataset", "load_dataset", "model_directions_table",
+           "participant_dataset", "simulated_dataset",
            "thesis_f_actual", "thesis_result_table", "composite_score", "data_discrepancy", "free_parameters",
            "bootstrap_prior", "bootstrap_scale"]

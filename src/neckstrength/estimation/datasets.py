@@ -133,12 +133,35 @@ def participant_dataset(model: ReducedModel, directions: pd.DataFrame, participa
     return Dataset(participant, list(d["name"]), U, forces * scale, scale, lb, ub, None)
 
 
-def build_dataset(model: ReducedModel, directions: pd.DataFrame, dataset: str, cfg: Mapping,
-                  thesis_dir: str | Path, measurements: str | Path, activations: str | Path) -> Dataset:
-    """Data set ``dataset`` ('norm', 'weak', 'Sim' or a participant id) for ``model`` per config ``cfg``."""
-    groups = cfg.get("emg_groups", {}).get(model.name, [])
+@dataclass(frozen=True)
+class DatasetSettings:
+    """How a data set is built from the tables for one model (config ``chapter5`` / ``chapter6``: ``emg_groups`` of
+    the model, ``simulated_emg``, ``simulated_emg_band``, ``participant_emg``, ``participant_emg_band``)."""
+
+    emg_groups: tuple[str, ...] = ()       # the model's EMG-recorded groups
+    simulated_emg: bool = False            # simulated 'norm'/'weak': bound the EMG groups' activations
+    simulated_emg_band: float = 0.05
+    participant_emg: str = "none"          # participants: 'none' or 'a3_band' (Table A.3 +- band)
+    participant_emg_band: float = 0.2
+
+
+def load_dataset(model: ReducedModel, directions: pd.DataFrame, dataset: str, settings: DatasetSettings,
+                 thesis_dir: str | Path, measurements: str | Path, activations: str | Path | None) -> Dataset:
+    """Data set ``dataset`` ('norm', 'weak': simulated from the thesis's f_a; else a participant column of
+    ``measurements``) for ``model``."""
+    s = settings
     if dataset in ("norm", "weak"):
         return simulated_dataset(model, directions, dataset, thesis_f_actual(model, thesis_dir, dataset),
-                                 groups if cfg.get("simulated_emg", False) else (), cfg.get("simulated_emg_band", 0.05))
-    return participant_dataset(model, directions, dataset, measurements, activations, cfg.get("participant_emg", "none"),
-                               groups, cfg.get("participant_emg_band", 0.2))
+                                 s.emg_groups if s.simulated_emg else (), s.simulated_emg_band)
+    return participant_dataset(model, directions, dataset, measurements, activations, s.participant_emg,
+                               s.emg_groups, s.participant_emg_band)
+
+
+def build_dataset(model: ReducedModel, directions: pd.DataFrame, dataset: str, cfg: Mapping,
+                  thesis_dir: str | Path, measurements: str | Path, activations: str | Path) -> Dataset:
+    """:func:`load_dataset` with its settings read from a config section (``chapter5``; to go: callers pass
+    :class:`DatasetSettings` built by ``neckstrength.config.dataset_settings``)."""
+    s = DatasetSettings(tuple(cfg.get("emg_groups", {}).get(model.name, [])), bool(cfg.get("simulated_emg", False)),
+                        cfg.get("simulated_emg_band", 0.05), cfg.get("participant_emg", "none"),
+                        cfg.get("participant_emg_band", 0.2))
+    return load_dataset(model, directions, dataset, s, thesis_dir, measurements, activations)

@@ -99,7 +99,8 @@ def load_targets(thesis_dir: str | Path) -> Targets:
 
 @dataclass(frozen=True)
 class CohortSpec:
-    """Design and generative assumptions of the synthetic cohort (config ``chapter3.synthetic``)."""
+    """Design and generative assumptions of the synthetic cohort (config ``chapter3.synthetic``, built by
+    :func:`neckstrength.config.cohort_spec`)."""
 
     n_per_group: int = 5                                   # Table 3.1: n = 5 per group
     reliability_participants: Mapping[str, int] = field(default_factory=lambda: {"WAD": 4, "Control": 2})
@@ -117,26 +118,6 @@ class CohortSpec:
     age_range: tuple[float, float] = (18.0, 70.0)          # draws clipped to this range
     bmi_range: tuple[float, float] = (16.0, 50.0)
     mfi_range: tuple[float, float] = (0.005, 0.995)        # MFI draws clipped to this range
-
-    @classmethod
-    def from_config(cls, cfg: Mapping) -> "CohortSpec":
-        s = dict(cfg.get("synthetic", {}))
-        rel = cfg.get("reliability", {})
-        cov = s.pop("covariate_effects", {})
-        re = s.pop("random_effects", {})
-        kw = dict(n_per_group=int(s.get("n_per_group", 5)),
-                  reliability_participants=dict(s.get("reliability_participants", {"WAD": 4, "Control": 2})),
-                  age_per_year=float(cov.get("age_per_year", 0.0005)),
-                  bmi_per_unit=float(cov.get("bmi_per_unit", 0.005)),
-                  female=float(cov.get("female", 0.02)),
-                  level_slope=float(re.get("level_slope", 0.3)),
-                  quartile_slope=float(re.get("quartile_slope", 0.3)),
-                  side_share=float(re.get("side_share", 0.25)),
-                  intra_loa=tuple(s.get("intra_loa", (-0.04, 0.06))),
-                  inter_loa=tuple(s.get("inter_loa", (-0.07, 0.07))),
-                  loa_multiplier=float(cfg.get("loa_multiplier", 1.96)),
-                  rater=str(rel.get("rater", "A")), second_rater=str(rel.get("second_rater", "B")))
-        return cls(**kw)
 
     # rater-error parameters implied by the limits of agreement
     @property

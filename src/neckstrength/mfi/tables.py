@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 import pandas as pd
@@ -159,10 +158,10 @@ def compare_with_thesis(thesis_stats: pd.DataFrame, reliability: pd.DataFrame, w
     return out
 
 
-def data_source_text(config: Mapping) -> str:
-    """Where the Chapter 3 numbers come from, for captions, headers and the comparison table."""
-    c3 = config.get("chapter3", {})
-    if c3.get("data"):
-        return f"data file {c3['data']} (dataset '{c3.get('dataset', 'real')}')"
-    return (f"SYNTHETIC cohort (neckstrength.mfi.synthetic, seed {config.get('seed')}), calibrated to thesis "
+def data_source_text(data_file: str | None, dataset: str = "real", seed: int | None = None) -> str:
+    """Where the Chapter 3 numbers come from, for captions, headers and the comparison table: the data file
+    (config ``chapter3.data``, data set name ``chapter3.dataset``) or, when None, the SYNTHETIC cohort of ``seed``."""
+    if data_file:
+        return f"data file {data_file} (dataset '{dataset}')"
+    return (f"SYNTHETIC cohort (neckstrength.mfi.synthetic, seed {seed}), calibrated to thesis "
             "Tables 3.1/3.2 and the reported limits of agreement; NOT the thesis's participants")

@@ -9,18 +9,21 @@ from typing import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from neckstrength.abc.algorithm4 import estimate_strengths
-from neckstrength.config import abc_settings, derive_rng, full_model_from_config, model_from_config
+from neckstrength.abc.stage import (
+    ALG4_TABLES,
+    alg4_figures,
+    run_alg4,
+    run_smc_comparison,
+    write_alg4,
+    write_smc_comparison,
+)
+from neckstrength.config import abc_settings, derive_rng, full_model_from_config, model_from_config, smc_settings
 from neckstrength.estimation.datasets import build_dataset, thesis_result_table
 from neckstrength.estimation.scaling import bootstrap_prior
-from neckstrength.io import atomic_write_csv, atomic_write_text
+from neckstrength.io import atomic_write_csv
 from neckstrength.pipeline.common import load_directions
 
-#: groups holding the deep cervical extensors in each named model (s3m24, p3m12, p2m7)
-DEEP_EXTENSOR_GROUPS = ("mf", "multif", "TC-E")
-
-
-OUTPUTS = ("estimate", "history", "scores", "dk_hist", "d_by_direction", "fit", "candidates")
+OUTPUTS = ALG4_TABLES
 
 
 def chapter5_estimate(config: Mapping, model_name: str, dataset: str, directions_csv: str | Path,
@@ -31,61 +34,18 @@ def chapter5_estimate(config: Mapping, model_name: str, dataset: str, directions
     d = load_directions(directions_csv)
     data = build_dataset(model, d, dataset, c, config["data"]["thesis_dir"], config["data"]["measurements"],
                          config["data"]["activations"])
-    settings = abc_settings(config, model_name)
-    f0, a = bootstrap_prior(model, data, c["bootstrap_direction"])
-    out_dir = Path(outputs["estimate"]).parent
-    ckpt = out_dir / ".checkpoint.npz"
-    rng = derive_rng(config["seed"], f"{model_name}/{dataset}")
-    print(f"model {model_name}, data set {dataset}: {model.m} muscles, {len(data.directions)} directions; "
-          f"Eq. 5.3 scale a = {a:.4f} in '{c['bootstrap_direction']}'; settings {settings}")
-    res = estimate_strengths(model, data, settings, f0, a, rng=rng, checkpoint=ckpt,
-                             progress=lambda s: print(s, flush=True), n_threads=threads)
-    pidx = {p: i for i, p in enumerate(res.param_names)}
-    rows = []
-    for j, mname in enumerate(model.muscle_names):
-        p = mname[:-2] if (settings.tie_sides and mname.endswith(("-R", "-L"))) else mname
-        k = pidx[p]
-        rows.append({"muscle": mname, "parameter": p, "f_base": model.strengths[j], "f_0": f0[j],
-                     "f_c": res.f_c[k], "sigma_c": res.sigma_c[k],
-                     "f_actual": np.nan if data.f_true is None else data.f_true[j]})
-    est = pd.DataFrame(rows)
-    hdr = [f"Chapter 5 ABC estimate (Algorithm 4): model {model_name}, data set {dataset}",
-           f"iterations {res.iterations}, converged {res.converged}, D(f_c) = {res.D_fc:.4f}, scale a = {a:.4f}",
-           f"settings {json.dumps(res.settings)}; seed {config['seed']} (only subsamples stored candidates)",
-           "sigma_c is a HEURISTIC sampling width (Eq. 5.12), not a posterior sd: f_c (1 +- sigma_c) covers the truth "
-           "far less often than a 68% interval would (docs/calibration.md)"]
-    atomic_write_csv(est, outputs["estimate"], hdr, float_format="%.6g")
-    meta = {"model": model_name, "dataset": dataset, "iterations": res.iterations, "converged": res.converged,
-            "D_fc": res.D_fc, "scale_a": a, "settings": res.settings, "seed": config["seed"]}
-    for name, df in (("history", res.history), ("scores", res.scores), ("dk_hist", res.dk_hist),
-                     ("d_by_direction", res.d_final), ("fit", res.fit), ("candidates", res.candidates)):
-        atomic_write_csv(df, outputs[name], hdr[:2], float_format="%.6g")
-    atomic_write_text(json.dumps(meta, indent=2, default=float), outputs["summary"])
+    ckpt = Path(outputs["estimate"]).parent / ".checkpoint.npz"
+    run = run_alg4(model, data, abc_settings(config, model_name), c["bootstrap_direction"],
+                   derive_rng(config["seed"], f"{model_name}/{dataset}"), config["seed"], checkpoint=ckpt,
+                   n_threads=threads)
+    write_alg4(run, outputs)
 
 
 def chapter5_figures(config: Mapping, model_name: str, dataset: str, directions_csv, inputs: Mapping[str, str],
                       outputs: Mapping[str, str]) -> None:
-    from neckstrength.abc.plots import abc_traces, d_by_direction_plot, dk_histograms, parallel_coordinates
-    from neckstrength.plotting import radar_grid_series
-
-    est = pd.read_csv(inputs["estimate"], comment="#")
-    hist = pd.read_csv(inputs["history"], comment="#")
-    dk = pd.read_csv(inputs["dk_hist"], comment="#")
-    dd = pd.read_csv(inputs["d_by_direction"], comment="#")
-    fit = pd.read_csv(inputs["fit"], comment="#")
-    cand = pd.read_csv(inputs["candidates"], comment="#")
-    truth = est.groupby("parameter")["f_actual"].first()
-    base = est.groupby("parameter")["f_base"].first()
-    tag = f"{model_name}, {dataset}"
-    abc_traces(hist, truth, base, outputs["traces"], f"Estimate per iteration ({tag}): f_c black, f_c(1 +- sigma) "
-               "blue dashed (sampling width, a heuristic: not an interval), truth red dashed, f'_base x")
-    dk_histograms(dk, outputs["dk_hist"], f"Composite scores D_k per iteration ({tag})")
-    d_by_direction_plot(dd, outputs["d_dir"], f"Scores d_ik by direction, last iteration ({tag})")
-    parallel_coordinates(cand, truth, outputs["parallel"], f"Candidates coloured by D_k percentile ({tag})")
-    d = load_directions(directions_csv)
-    radar_grid_series(d, [("measured", fit.set_index("direction")["measured_N"], {"color": "blue", "ls": "--"}),
-                          ("model at f_c", fit.set_index("direction")["simulated_N"], {"color": "black", "lw": 2})],
-                      outputs["radar"], f"Fit of the final estimate ({tag}) (N)")
+    tables = {k: pd.read_csv(inputs[k], comment="#") for k in ("estimate", "history", "dk_hist", "d_by_direction",
+                                                                "fit", "candidates")}
+    alg4_figures(tables, load_directions(directions_csv), model_name, dataset, outputs)
 
 
 def chapter5_table(config: Mapping, model_name: str, datasets: Sequence[str], estimates: Sequence[str],
@@ -129,56 +89,19 @@ def chapter5_table(config: Mapping, model_name: str, datasets: Sequence[str], es
 def chapter5_smc(config: Mapping, model_name: str, dataset: str, directions_csv, estimate_csv, summary_json,
                   out_csv, out_generations) -> pd.DataFrame:
     """ABC-SMC with every muscle free vs Algorithm 4 at equal simulation budget."""
-    from neckstrength.abc.smc import SMCSettings, abc_smc
-    from neckstrength.estimation.parameters import free_parameters
-
     c = config["chapter5"]
-    sc = c["smc"]
     full = full_model_from_config(config)
     model = model_from_config(full, config, model_name)
     d = load_directions(directions_csv)
     data = build_dataset(model, d, dataset, c, config["data"]["thesis_dir"], config["data"]["measurements"],
                          config["data"]["activations"])
     meta = json.loads(Path(summary_json).read_text())
-    settings = abc_settings(config, model_name)
-    _, pnames = free_parameters(model, settings.tie_sides)
-    alg4_budget = int(meta["iterations"]) * 3 ** len(pnames)
-    budget = int(min(alg4_budget, sc["max_budget"]))
-    f0, _ = bootstrap_prior(model, data, c["bootstrap_direction"])
-    rng = derive_rng(config["seed"], f"smc/{model_name}/{dataset}")
-    print(f"Algorithm 4 used {alg4_budget} candidate evaluations ({meta['iterations']} iterations x 3^{len(pnames)}); "
-          f"ABC-SMC budget {budget} (cap {sc['max_budget']})")
-    res = abc_smc(model, data, f0, SMCSettings(n_particles=sc["n_particles"], budget=budget,
-                                               prior_sigma=sc["prior_sigma"], quantile=sc["quantile"],
-                                               epsilon=c["epsilon"]), rng, progress=lambda s: print(s, flush=True))
-    est = pd.read_csv(estimate_csv, comment="#").set_index("muscle")
-    q = res.quantiles((0.05, 0.5, 0.95))
-    mean = res.mean()
-    rows = []
-    for j, mname in enumerate(model.muscle_names):
-        truth = data.f_true[j] if data.f_true is not None else np.nan
-        a4 = float(est.loc[mname, "f_c"])
-        rows.append({"muscle": mname, "truth": truth, "alg4_f_c": a4, "alg4_sigma_c": float(est.loc[mname, "sigma_c"]),
-                     "smc_mean": mean[j], "smc_q05": q[0, j], "smc_median": q[1, j], "smc_q95": q[2, j],
-                     "alg4_rel_error": (a4 - truth) / truth, "smc_rel_error": (mean[j] - truth) / truth,
-                     "smc_covers_truth": bool(q[0, j] <= truth <= q[2, j]) if np.isfinite(truth) else None})
-    df = pd.DataFrame(rows)
-    deep = [i for i, n in enumerate(model.muscle_names)
-            if n in DEEP_EXTENSOR_GROUPS or n.rsplit("-", 1)[0] in DEEP_EXTENSOR_GROUPS]
-    from neckstrength.estimation.datasets import thesis_f_actual
-    ref = thesis_f_actual(model, config["data"]["thesis_dir"], "norm")
-    hdr = [f"ABC-SMC (all {model.m} muscles free) vs Algorithm 4 ({'tied sides' if settings.tie_sides else 'free'}), "
-           f"{model_name}/{dataset}; budget {res.n_simulations} vs {alg4_budget} candidate evaluations",
-           "deep extensors estimated weak (< 50% of the healthy 'norm' f_a): "
-           + "; ".join(f"{model.muscle_names[i]}: alg4 {bool(est.loc[model.muscle_names[i], 'f_c'] < 0.5 * ref[i])}, "
-                       f"smc {bool(mean[i] < 0.5 * ref[i])}" for i in deep),
-           f"mean |relative error| alg4 {np.nanmean(np.abs(df['alg4_rel_error'])):.3f}, "
-           f"smc {np.nanmean(np.abs(df['smc_rel_error'])):.3f}; seed {config['seed']}"]
-    for h in hdr:
-        print(h)
-    atomic_write_csv(df, out_csv, hdr, float_format="%.5g")
-    atomic_write_csv(res.generations, out_generations, hdr[:1], float_format="%.5g")
-    return df
+    cmp = run_smc_comparison(model, data, pd.read_csv(estimate_csv, comment="#"), int(meta["iterations"]),
+                             abc_settings(config, model_name), smc_settings(config), c["bootstrap_direction"],
+                             config["data"]["thesis_dir"], derive_rng(config["seed"], f"smc/{model_name}/{dataset}"),
+                             config["seed"])
+    write_smc_comparison(cmp, out_csv, out_generations)
+    return cmp.table
 
 
 def chapter5_coverage(config: Mapping, model_name: str, directions_csv, out_csv, out_summary) -> pd.DataFrame:

@@ -48,6 +48,7 @@ from neckstrength.sequential.analysis import (
     subset_rows,
 )
 from neckstrength.sequential.joint import JointPosterior, run_joint
+from neckstrength.sequential.joint_estimate import run_joint_estimate, write_joint_estimate
 from neckstrength.sequential.orders import stop_iteration
 from neckstrength.sequential.plots import (
     fig_criteria_curves,
@@ -403,61 +404,14 @@ def chapter6_joint(config: Mapping, model_name: str, dataset: str, directions_cs
     Outputs: iterations (criterion, iteration, direction, muscle, E, Var, entropy, ESS share, resamples),
     the final estimate per criterion beside the truth (simulated data sets) and a summary with seeds and timing.
     """
-    from neckstrength.wrench.batched import BasisCache
-
-    t_start = time.time()
-    c = config["chapter6"]
-    jc = c.get("joint", {})
+    jc = config["chapter6"].get("joint", {})
     model = model_from_config(full_model_from_config(config), config, model_name)
-    d = load_directions(directions_csv)
-    data = chapter6_dataset(model, d, dataset, config)
-    settings = joint_settings(config)
-    use_emg = bool(jc.get("use_emg", False))
-    f0, a, _ = scaled_baseline(model, data)
+    data = chapter6_dataset(model, load_directions(directions_csv), dataset, config)
     key = f"chapter6/joint/{model_name}/{dataset}"
-    ss_cand, ss_prop = _seed(config, key).spawn(2)
-    measure = measure_from(data)
-    if not use_emg:
-        measure = (lambda m: (lambda dn: (m(dn)[0], None)))(measure)
-    _print(f"joint sequential estimator, {model_name} / {dataset}: {model.m} muscles, {len(data.directions)} "
-           f"directions, f_0 = {a:.4f} f'_base; {settings}; EMG bounds {'used' if use_emg else 'not used'}")
-    cache = BasisCache()
-    parts, finals, info = [], [], {}
-    for crit in jc.get("criteria", ["joint_eig", "marginal_entropy"]):
-        t0 = time.time()
-        post = JointPosterior(model, data.directions, data.U, data.force_scale, f0, settings,
-                              np.random.default_rng(ss_cand), progress=_print, cache=cache)
-        it = run_joint(post, measure, crit, np.random.default_rng(ss_prop), f_true=data.f_true, progress=_print)
-        it.insert(0, "criterion", crit)
-        parts.append(it)
-        est = post.estimate()
-        est.insert(0, "criterion", crit)
-        est["f_true"] = data.f_true if data.f_true is not None else np.nan
-        est["rel_diff_true"] = (est["f_c"] - est["f_true"]) / est["f_true"]
-        finals.append(est)
-        info[crit] = {"order": post.tested, "seconds": round(time.time() - t0, 2), "resamples": post.n_resamples,
-                      "final_ess_share": post.ess_share(), "lps_solved": int(post.n_lps)}
-        _print(f"[{crit}] order {post.tested}; {post.n_resamples} resamples, {post.n_lps} LPs, "
-               f"{time.time() - t0:.1f} s")
-    it = pd.concat(parts, ignore_index=True)
-    atomic_write_csv(it, out_iterations, [f"joint sequential estimator (beyond the thesis), {model_name} / {dataset}",
-                                          "iteration 0 = prior; entropy = marginal differential entropy (nats) on "
-                                          "the Chapter 6 grid; ess_share = ESS / N of the weighted candidates"],
-                     float_format="%.6g")
-    est = pd.concat(finals, ignore_index=True)
-    atomic_write_csv(est, out_estimate, [f"joint sequential estimator: final estimate after all tests, {model_name} "
-                                         f"/ {dataset}; f_true = f_a of a simulated data set (NaN for participants)",
-                                         "sd_c: calibrated on simulated p2m7 data (docs/calibration.md); NOT on "
-                                         "s3m24 at the sizes checked, and not under model misfit (participants): "
-                                         "there it understates the uncertainty"],
-                     float_format="%.6g")
-    summary = {"model": model_name, "dataset": dataset, "seed": int(config["seed"]), "seed_key": key,
-               "settings": {f.name: getattr(settings, f.name) for f in fields(settings)}, "use_emg": use_emg,
-               "a": a, "criteria": info, "seconds": round(time.time() - t_start, 2)}
-    tmp = Path(str(out_summary) + ".tmp")
-    tmp.write_text(json.dumps(summary, indent=2))
-    tmp.replace(out_summary)
-    return it
+    res = run_joint_estimate(model, data, joint_settings(config), jc.get("criteria", ["joint_eig", "marginal_entropy"]),
+                             bool(jc.get("use_emg", False)), int(config["seed"]), key, _seed(config, key))
+    write_joint_estimate(res, out_iterations, out_estimate, out_summary)
+    return res.iterations
 
 
 def chapter6_criteria(config: Mapping, model_name: str, directions_csv, out_table, out_summary,

@@ -9,6 +9,7 @@ import pandas as pd
 
 from neckstrength import __version__
 from neckstrength.config import Settings, settings_view
+from neckstrength.io import read_directions as load_directions  # noqa: F401  (the stages' name)
 
 
 def provenance_lines(config: Mapping, what: str) -> list[str]:
@@ -16,10 +17,6 @@ def provenance_lines(config: Mapping, what: str) -> list[str]:
             f"moment arms: {config['model']['moment_arm_source']}; B.1 errata applied: "
             f"{config['model']['apply_b1_errata']}; unprinted strengths: "
             f"{config['model'].get('unprinted_strengths', 'b3_implied')}"]
-
-
-def load_directions(path: str | Path) -> pd.DataFrame:
-    return pd.read_csv(path, comment="#")
 
 
 def rule_settings(smk) -> Settings:

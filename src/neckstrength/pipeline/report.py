@@ -40,7 +40,9 @@ def report_environment(config: Mapping, out_csv) -> pd.DataFrame:
     """The environment rule: software versions, platform and seeds."""
     from neckstrength.io import atomic_write_csv
 
-    env = environment_table(config)
+    c5 = config.get("chapter5", {})
+    env = environment_table(config.get("seed"), not config.get("chapter3", {}).get("data"),
+                            [(m, d) for m in c5.get("models", []) for d in c5.get("datasets", [])])
     atomic_write_csv(env, out_csv, ["software versions seen by the report job, platform, and every seed the "
                                     "pipeline derives from config 'seed'"])
     print(env.to_string(index=False))

@@ -240,28 +240,29 @@ def software_versions(packages: Iterable[str] = SOFTWARE) -> dict[str, str]:
     return out
 
 
-def seed_rows(config: Mapping) -> list[dict]:
-    """Every seed the pipeline uses, derived from config 'seed' exactly as the stages derive them."""
-    seed = config.get("seed")
+def seed_rows(seed: int | None, chapter3_synthetic: bool = True,
+              chapter5_runs: Iterable[tuple[str, str]] = ()) -> list[dict]:
+    """Every seed the pipeline uses, derived from config 'seed' exactly as the stages derive them:
+    ``chapter3_synthetic`` (the Chapter 3 cohort is drawn: config ``chapter3.data`` unset), ``chapter5_runs`` the
+    (model, data set) pairs of Chapter 5 (config ``chapter5.models`` x ``chapter5.datasets``)."""
     rows = [{"kind": "seed", "name": "seed", "value": str(seed),
              "note": "config 'seed': recorded in every table header"}]
-    c3 = config.get("chapter3", {})
-    if not c3.get("data"):
+    if chapter3_synthetic:
         rows.append({"kind": "seed", "name": "chapter3 SYNTHETIC cohort", "value": f"default_rng({seed})",
                      "note": "neckstrength.pipeline.chapter3.chapter3_synthetic_cohort"})
-    c5 = config.get("chapter5", {})
-    for m in c5.get("models", []):
-        for d in c5.get("datasets", []):
-            rows.append({"kind": "seed", "name": f"chapter5 {m}/{d}",
-                         "value": f"default_rng([{seed}, {zlib.crc32(f'{m}/{d}'.encode())}])",
-                         "note": "crc32 of 'model/dataset' (neckstrength.pipeline.chapter5.chapter5_estimate)"})
+    for m, d in chapter5_runs:
+        rows.append({"kind": "seed", "name": f"chapter5 {m}/{d}",
+                     "value": f"default_rng([{seed}, {zlib.crc32(f'{m}/{d}'.encode())}])",
+                     "note": "crc32 of 'model/dataset' (neckstrength.pipeline.chapter5.chapter5_estimate)"})
     return rows
 
 
-def environment_table(config: Mapping) -> pd.DataFrame:
+def environment_table(seed: int | None, chapter3_synthetic: bool = True,
+                      chapter5_runs: Iterable[tuple[str, str]] = ()) -> pd.DataFrame:
+    """Software versions, platform and every seed (:func:`seed_rows`)."""
     rows = [{"kind": "software", "name": k, "value": v, "note": ""} for k, v in software_versions().items()]
     rows += [{"kind": "platform", "name": "system", "value": f"{platform.system()} {platform.release()}",
               "note": platform.machine()},
              {"kind": "platform", "name": "cpus", "value": str(os.cpu_count()), "note": "visible to the job"}]
-    rows += seed_rows(config)
+    rows += seed_rows(seed, chapter3_synthetic, chapter5_runs)
     return pd.DataFrame(rows, columns=["kind", "name", "value", "note"])

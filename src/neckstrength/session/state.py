@@ -134,13 +134,10 @@ class Session:
                  threads: int | None = None):
         from neckstrength.config import (
             build_directions,
-            chapter6_settings,
-            deficit_definition,
             full_model_from_config,
-            joint_settings,
             load_config,
             model_from_config,
-            session_defaults,
+            session_settings,
         )
         from neckstrength.estimation.datasets import model_directions_table
 
@@ -148,15 +145,14 @@ class Session:
         self.progress = progress = progress or _silent
         self.threads = session_threads(threads)     # not in the header: the numbers do not depend on it
         cfg = load_config(opts.config)
-        self.cfg = cfg
-        defaults = session_defaults(cfg, opts.model)
-        postures = resolve_postures(opts.postures, list(cfg.get("postures", {}).get("postures", ["neutral"])))
+        self.config_settings = cs = session_settings(cfg, opts.model)
+        postures = resolve_postures(opts.postures, list(cs.postures))
         cost = float(opts.posture_change_cost)
         if not np.isfinite(cost) or cost < 0:
             raise ValueError(f"--posture-change-cost: {opts.posture_change_cost!r} must be >= 0 (nats)")
         if cost > 0 and postures is None:
             raise ValueError("--posture-change-cost needs --postures (a session in neutral only never changes posture)")
-        crit = opts.criterion or defaults.get("criterion", "thesis")
+        crit = opts.criterion or cs.criterion
         if crit not in CRITERIA:
             raise ValueError(f"unknown criterion {crit!r}; known: {', '.join(CRITERIA)}")
         if postures is not None and crit == "thesis":
@@ -164,14 +160,14 @@ class Session:
                 raise ValueError("--postures needs the joint posterior (--criterion joint_eig or marginal_entropy): "
                                  "the thesis's scheme (Algorithms 7-9) has no posture model")
             crit = "joint_eig"
-        if opts.n_candidates is None and crit != "thesis" and "n_candidates" in defaults:
-            opts = replace(opts, n_candidates=int(defaults["n_candidates"]))
+        if opts.n_candidates is None and crit != "thesis" and cs.n_candidates is not None:
+            opts = replace(opts, n_candidates=cs.n_candidates)
         # resolved: the header fixes the session's numbers
         self.opts = opts = replace(opts, criterion=crit, postures=postures, posture_change_cost=cost)
         self.postures = postures
         self.criterion = crit
         self.joint = crit != "thesis"
-        self.deficit = deficit_definition(cfg)
+        self.deficit = cs.deficit
         full = full_model_from_config(cfg)
         self.model = model_from_config(full, cfg, opts.model)
         self.muscles = list(self.model.muscle_names)
@@ -183,31 +179,28 @@ class Session:
         if self.joint and opts.priorities and crit == "joint_eig":
             raise ValueError("muscle priorities (Eq. 6.8) need --criterion marginal_entropy or thesis; joint_eig "
                              "scores the information about all muscles together")
-        self.settings = (joint_settings(cfg, **over) if self.joint
-                         else chapter6_settings(cfg, opts.model, **over))
+        self.settings = replace(cs.joint if self.joint else cs.sequential, **over)
         d, U = model_directions_table(self.model, build_directions(cfg))
         self.U = U
         self.dirtable = d
         self.directions = list(d["name"])
         self.base_directions = list(self.directions)
-        self.push = render.where_to_push(d, cfg.get("geometry", {}).get("test_point_spec"))
+        self.push = render.where_to_push(d, cs.test_point_spec)
         self.force_scale = d["force_scale"].to_numpy(float)
         self.pset = None
         if postures is not None:                # tests = (posture, direction) pairs, labelled posture:direction
             from neckstrength.postures import build_posture_set, load_posture_tables, pair_label
 
-            tables = load_posture_tables(cfg["data"]["model_dir"], postures)
-            self.pset = build_posture_set(full, self.model, tables, postures,
-                                          cfg.get("postures", {}).get("force_length", "relative"))
+            tables = load_posture_tables(cs.model_dir, postures)
+            self.pset = build_posture_set(full, self.model, tables, postures, cs.force_length)
             self.test_postures = [p for p in postures for _ in self.base_directions]
             self.directions = [pair_label(p, n) for p in postures for n in self.base_directions]
             self.U = np.vstack([U] * len(postures))
             self.force_scale = np.tile(self.force_scale, len(postures))
         self.gamma = (np.array([float(opts.priorities.get(n, 0.0)) for n in self.muscles])
                       if opts.priorities else None)
-        self.gain_frac = (float(opts.gain_frac) if opts.gain_frac is not None
-                          else float(cfg["chapter6"].get("stop", {}).get("gain_frac", 0.2)))
-        self.seed = int(cfg["seed"] if opts.seed is None else opts.seed)
+        self.gain_frac = float(opts.gain_frac) if opts.gain_frac is not None else cs.gain_frac
+        self.seed = int(cs.seed if opts.seed is None else opts.seed)
         s = self.settings
         self.f0 = float(opts.prior_scale) * self.model.strengths
         self.skipped: list[str] = []
@@ -226,7 +219,7 @@ class Session:
             self.state = self._joint_state()
             self.key = self.state.key
             progress(f"  ready in {time.time() - t0:.1f} s")
-            self.decision = self._decision(cfg)
+            self.decision = self._decision(cs)
             return
         ss = seed_sequence(self.seed, f"session/{opts.model}")
         F = sample_prior(self.f0, s.prior_sd_rel, s.n_candidates, np.random.default_rng(ss))
@@ -254,10 +247,9 @@ class Session:
                           key_extra="postures=" + ",".join(self.postures) + f";cost={self.opts.posture_change_cost!r}")
 
 
-    def _decision(self, cfg):
+    def _decision(self, cs):
         """The deficit decision (issue 31; :mod:`neckstrength.sequential.decision`) beside the joint posterior, for a
         model with the group and tests in neutral posture; None otherwise."""
-        from neckstrength.config import decision_settings
         from neckstrength.sequential.decision import DeficitDecision
 
         over = {}
@@ -267,7 +259,7 @@ class Session:
             over["noise"] = float(self.opts.noise)
             over["noise_source"] = self.opts.noise_source or "given at session start"
         try:
-            ds = decision_settings(cfg, **over)
+            ds = replace(cs.decision, **over)
         except ValueError as exc:
             raise ValueError(f"session decision settings: {exc}") from None
         if self.postures or not len(ds.group_indices(self.muscles)):

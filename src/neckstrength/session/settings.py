@@ -1,0 +1,33 @@
+"""The clinician session's settings from the config: :class:`SessionSettings`
+==========================================================================
+
+Built once per session by :func:`neckstrength.config.session_settings`; the session's own options
+(:class:`~neckstrength.session.state.SessionOptions`, the command line's) override some of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from neckstrength.sequential.algorithms import SequentialSettings
+from neckstrength.sequential.decision import DecisionSettings
+from neckstrength.sequential.deficit import DeficitDefinition
+from neckstrength.sequential.joint import JointSettings
+
+
+@dataclass(frozen=True)
+class SessionSettings:
+    """What the config fixes of a session of one model (the defaults of :class:`SessionOptions` that are None)."""
+
+    seed: int                                  # config seed (--seed overrides)
+    sequential: SequentialSettings             # chapter6 (+ chapter6.model_settings.<model>): the thesis's scheme
+    joint: JointSettings                       # chapter6.joint: the joint posterior
+    deficit: DeficitDefinition                 # clinician.deficit: the screen's P(deficit)
+    decision: DecisionSettings                 # clinician.decision (--prevalence, --noise override)
+    gain_frac: float = 0.2                     # chapter6.stop.gain_frac (--stop-frac overrides)
+    criterion: str = "thesis"                  # clinician.session.<model>.criterion (--criterion overrides)
+    n_candidates: int | None = None            # clinician.session.<model>.n_candidates (None: chapter6's)
+    postures: tuple[str, ...] = ("neutral",)   # postures.postures: the postures '--postures all' means
+    force_length: str = "relative"             # postures.force_length
+    model_dir: str = "data/model"              # data.model_dir: the posture tables
+    test_point_spec: str | None = None         # geometry.test_point_spec: where to push, on the main screen
