@@ -719,3 +719,17 @@ def identifiability_settings(config: Mapping, model_name: str):
                          protocols=tuple(per.get("protocols", c["protocols"])),
                          protocol_grid=tuple(float(x) for x in c["protocol_grid"]), sigma_ref=float(c["sigma_ref"]),
                          check_rtol=float(c["check_rtol"]))
+
+
+def rerun_settings(config: Mapping, chapter: str, model_name: str):
+    """:class:`neckstrength.reruns.runs.RerunSettings` of one chapter x model (config ``reruns``): K from
+    ``reruns.<chapter>.members``, overridden per model by ``reruns.chapter5.model_members``."""
+    from neckstrength.reruns.runs import RerunSettings
+
+    r = config["reruns"]
+    if chapter not in ("chapter5", "chapter6"):
+        raise ValueError(f"reruns: unknown chapter {chapter!r} (chapter5, chapter6)")
+    c = r[chapter]
+    members = int(c.get("model_members", {}).get(model_name, c["members"]))
+    n = c.get("n_candidates") if chapter == "chapter6" else None
+    return RerunSettings(members=members, level=float(r["level"]), n_candidates=None if n is None else int(n))

@@ -131,3 +131,58 @@ def group_spread(bands: pd.DataFrame) -> pd.DataFrame:
     return (f.groupby(["source", "group"], sort=False)
             .agg(datasets=("dataset", "nunique"), median_rel_spread=("rel", "median"), max_rel_spread=("rel", "max"),
                  median_rel_print_half_unit=("rel_print", "median")).reset_index())
+
+
+def within_tolerance(quantity: str, thesis: float, ours: float, censored: bool = False,
+                     tols: Mapping | None = None) -> bool:
+    """The scorecard's 'matches' test of one Chapter 5 value (:data:`TOLERANCES`: f_c max(0.5 N, 10 %), sigma_c
+    0.05, D(f_c) 0.01, iterations max(1, 20 %); a censored count matches a run that reached the cap)."""
+    from neckstrength.report.scorecard.tolerances import TOLERANCES
+
+    t = tols or TOLERANCES
+    d = abs(ours - thesis)
+    if math.isnan(d):
+        return False
+    if quantity == "f_c":
+        return d <= max(0.5, t["estimate_rel"].value * abs(thesis))
+    if quantity == "sigma_c":
+        return d <= t["sigma_c_abs"].value
+    if quantity == "D_fc":
+        return d <= t["D_fc_abs"].value
+    if quantity == "iters":
+        return ours >= thesis if censored else d <= max(1.0, t["iters_rel"].value * abs(thesis))
+    return d <= t["estimate_rel"].value * abs(thesis)
+
+
+ATTRIBUTION_COLUMNS = ["variant", "changes", "items", "on_print", "within_tolerance", "moved_onto", "moved_off",
+                       "median_abs_rel_diff_f_c", "moved_onto_items"]
+
+
+def attribution_summary(runs: pd.DataFrame, changes: Mapping[str, str], baseline: str = "baseline"
+                        ) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Per variant (one run each; a band table per variant with a ``variant`` column, as
+    :func:`neckstrength.reruns.bands.band_table` writes it): how many printed items our value meets on the print
+    (within half a printed unit) and within the scorecard's tolerance, and which items the change moved onto the
+    thesis's value (within tolerance now, not at ``baseline``) or off it. Returns (per item, per variant)."""
+    r = runs.copy()
+    r["ours"] = r["median"]
+    r["on_print"] = (r["ours"] - r["thesis"]).abs() <= r["printed_half_unit"] + 1e-12
+    r["within_tolerance"] = [within_tolerance(q, t, o, c) for q, t, o, c in
+                             zip(r["quantity"], r["thesis"], r["ours"], r["censored"])]
+    r["item"] = [f"{m} " + _item(x) for m, x in zip(r["model"], r.to_dict("records"))]
+    base = r[r["variant"] == baseline].set_index("item")["within_tolerance"]
+    rows = []
+    for v, sub in r.groupby("variant", sort=False):
+        w = sub.set_index("item")["within_tolerance"]
+        b = base.reindex(w.index).fillna(False).astype(bool)
+        onto = [i for i in w.index if w[i] and not b[i]]
+        off = [i for i in w.index if b[i] and not w[i]]
+        f = sub[sub["quantity"] == "f_c"]
+        rel = ((f["ours"] - f["thesis"]).abs() / f["thesis"].abs()).median() if len(f) else math.nan
+        rows.append({"variant": v, "changes": changes.get(v, ""), "items": len(sub),
+                     "on_print": int(sub["on_print"].sum()),
+                     "within_tolerance": int(sub["within_tolerance"].sum()), "moved_onto": len(onto),
+                     "moved_off": len(off), "median_abs_rel_diff_f_c": rel, "moved_onto_items": "; ".join(onto)})
+    cols = ["variant", "item", "model", "dataset", "quantity", "group", "thesis_text", "ours", "on_print",
+            "within_tolerance"]
+    return r[cols].reset_index(drop=True), pd.DataFrame(rows, columns=ATTRIBUTION_COLUMNS)
