@@ -53,9 +53,9 @@ var NS = (function () {
     // skull frame: x forward, y up, z to the right; each view maps a vector to screen (right, down)
     var C = [0.01, 0.03, 0], S = 420;
     var views = [
-      ["front", function (q) { return [-q[2], -q[1]]; }, 32, 50],   // facing the person: their right on our left
-      ["side (right)", function (q) { return [q[0], -q[1]]; }, 42, 50],
-      ["top", function (q) { return [q[2], -q[0]]; }, 32, 42]];     // from above, the nose up
+      ["front", function (q) { return [-q[2], -q[1], q[0]]; }, 32, 50],   // facing the person: their right on our left
+      ["side (right)", function (q) { return [q[0], -q[1], q[2]]; }, 42, 50],
+      ["top", function (q) { return [q[2], -q[0], q[1]]; }, 32, 42]];     // from above, the nose up; [2]: towards us
     var defs = '<defs><marker id="arrow" viewBox="0 0 10 10" refX="8" refY="5" markerWidth="5" markerHeight="5" orient="auto-start-reverse"><path d="M0,0 L10,5 L0,10 z" class="arrowhead"/></marker></defs>';
     var out = "";
     views.forEach(function (v) {
@@ -69,12 +69,12 @@ var NS = (function () {
       var p = f(g.point), n = f(g.normal), c0 = f(C);
       var px = cx + S * (p[0] - c0[0]), py = cy + S * (p[1] - c0[1]);
       var L = Math.sqrt(n[0] * n[0] + n[1] * n[1]);
-      body += '<circle cx="' + px.toFixed(1) + '" cy="' + py.toFixed(1) + '" r="5" class="pad"/>';
+      body += '<circle cx="' + px.toFixed(1) + '" cy="' + py.toFixed(1) + '" r="5" class="pad' + (p[2] - c0[2] < -0.02 ? ' far' : '') + '"/>';
       if (L > 0.3) body += '<line x1="' + px.toFixed(1) + '" y1="' + py.toFixed(1) + '" x2="' + (px + 34 * n[0]).toFixed(1) + '" y2="' + (py + 34 * n[1]).toFixed(1) + '" class="push" marker-end="url(#arrow)"/>';
       else body += '<circle cx="' + px.toFixed(1) + '" cy="' + py.toFixed(1) + '" r="10" class="push-depth"/>';
       out += '<figure>' + svg(130, 140, defs + body, "headview") + '<figcaption>' + v[0] + '</figcaption></figure>';
     });
-    return out + '<p class="hint">dot: where the pad sits; arrow: the way the head pushes against the pad (the clinician resists); a dashed ring: the push is mostly towards or away from the viewer.</p>';
+    return out + '<p class="hint">dot: where the pad sits; arrow: the way the head pushes against the pad (the clinician resists); a hollow dot: the pad is on the far side of the head in that view; a dashed ring: the push is mostly towards or away from the viewer.</p>';
   }
 
   function bars(alts) {
@@ -97,7 +97,7 @@ var NS = (function () {
   }
 
   function radar(readings) {
-    if (!readings.length) return '<p class="hint">No reading yet.</p>';
+    if (readings.length < 3) return '<p class="hint">The radar appears from the third reading; the table lists them.</p>';
     var n = readings.length, R = 80, c = 100, top = 0;
     readings.forEach(function (r) { top = Math.max(top, r.force_N || 0, r.predicted_N || 0); });
     function poly(key) {
@@ -142,16 +142,27 @@ var NS = (function () {
         trend(d.trend) + '<p class="label' + (d.calibrated ? " calibrated" : " heuristic") + '" id="deficit-label">' + esc(d.label) + '</p>' +
         (d.settings_label ? '<p class="hint">Depends on: ' + esc(d.settings_label) + '</p>' : "")) :
         '<p class="hint">This model has no deficit question (the deep-extensor group is not one of its groups).</p>';
-      $("groups").tBodies[0].innerHTML = v.groups.map(function (g) {
+      var pctCell = function (g) {
         var pct = g.pct_expected, w = Math.min(Math.max(pct || 0, 0), 200) / 2, sd = Math.min((g.pct_sd || 0) / 2, 50);
-        return '<tr><td title="' + esc(g.muscle) + '">' + esc(g.name) + (g.side ? " (" + g.side + ")" : "") + ' <span class="code">' + esc(g.muscle) + '</span></td>' +
-          '<td><span class="pctbar"><span class="fill" style="width:' + w.toFixed(1) + '%"></span><span class="sd" style="left:' + Math.max(w - sd, 0).toFixed(1) + '%;width:' + (2 * sd).toFixed(1) + '%"></span><span class="ref"></span></span> ' + fmt(pct) + ' % ± ' + fmt(g.pct_sd) + '</td>' +
-          '<td>' + fmt(g.estimate_N) + ' ± ' + fmt(g.sd_N) + ' N</td></tr>';
+        return '<span class="pctbar"><span class="fill" style="width:' + w.toFixed(1) + '%"></span><span class="sd" style="left:' + Math.max(w - sd, 0).toFixed(1) + '%;width:' + (2 * sd).toFixed(1) + '%"></span><span class="ref"></span></span> ' + fmt(pct) + ' % ± ' + fmt(g.pct_sd);
+      };
+      var paired = v.asymmetry.length > 0, byCode = {};
+      v.groups.forEach(function (g) { (byCode[g.code] = byCode[g.code] || []).push(g); });
+      $("groups").tHead.innerHTML = paired ? '<tr><th>group</th><th>right: % of expected</th><th>left</th><th>right − left</th></tr>' :
+        '<tr><th>group</th><th>% of expected</th><th>estimate</th></tr>';
+      $("groups").tBodies[0].innerHTML = Object.keys(byCode).map(function (code) {
+        var gs = byCode[code], g = gs[0];
+        if (paired && gs.length === 2) {
+          var a = v.asymmetry.filter(function (x) { return x.code === code; })[0];
+          return '<tr><td>' + esc(g.name) + ' <span class="code">' + esc(code) + '</span></td><td title="' + fmt(gs[0].estimate_N) + ' ± ' + fmt(gs[0].sd_N) + ' N">' + pctCell(gs[0]) + '</td><td title="' + fmt(gs[1].estimate_N) + ' ± ' + fmt(gs[1].sd_N) + ' N">' + pctCell(gs[1]) + '</td><td>' + (a ? fmt(a.right_minus_left_pct) + ' %' : "") + '</td></tr>';
+        }
+        return gs.map(function (g) {
+          return '<tr><td title="' + esc(g.muscle) + '">' + esc(g.name) + (g.side ? " (" + g.side + ")" : "") + ' <span class="code">' + esc(g.muscle) + '</span></td><td>' + pctCell(g) + '</td><td>' + fmt(g.estimate_N) + ' ± ' + fmt(g.sd_N) + ' N</td>' + (paired ? '<td></td>' : '') + '</tr>';
+        }).join("");
       }).join("");
       $("reference-label").textContent = v.reference_label;
       $("uncertainty-label").textContent = "± : " + v.uncertainty_label;
-      $("asymmetry").innerHTML = v.asymmetry.length ? '<h3>Left/right</h3><table class="groups"><tbody>' + v.asymmetry.map(function (a) {
-        return '<tr><td>' + esc(a.name) + '</td><td>right ' + fmt(a.right_N) + ' N</td><td>left ' + fmt(a.left_N) + ' N</td><td>' + fmt(a.right_minus_left_pct) + ' %</td></tr>'; }).join("") + '</tbody></table>' : "";
+      $("asymmetry").innerHTML = paired ? '<p class="hint">right − left: the difference of the two sides\' estimates over their mean (hover a cell for the estimate in N).</p>' : "";
       $("radar").innerHTML = radar(v.readings);
       $("readings").tBodies[0].innerHTML = v.readings.map(function (r) {
         return '<tr' + (r.retest ? ' class="retest"' : "") + '><td>' + esc(r.test) + '</td><td>' + fmt(r.force_N) + ' N</td><td>' + fmt(r.predicted_N) + ' N</td><td>' +
@@ -188,6 +199,17 @@ var NS = (function () {
       });
       return out;
     }
+    var busy = false;
+    function guard(fn) {      // one request at a time from this page (a double click does not send twice)
+      return function () {
+        if (busy) return Promise.resolve();
+        busy = true; document.body.classList.add("busy");
+        var btns = document.querySelectorAll("#test-card button"); btns.forEach(function (b) { b.disabled = true; });
+        return fn.apply(null, arguments).then(function (x) { return x; }, function (e) { throw e; }).finally(function () {
+          busy = false; document.body.classList.remove("busy"); btns.forEach(function (b) { b.disabled = false; });
+        });
+      };
+    }
     function send(body) {
       var other = $("other-test").value;
       if (other) body.test = other;
@@ -212,15 +234,16 @@ var NS = (function () {
       $("force-error").textContent = "";
       var f;
       try { f = parseForce($("force").value); emg(); } catch (e) { $("force-error").textContent = e.message; return; }
-      if (!$("best-of").checked) { send({force_N: f}).catch(function (e) { fail(e); }); return; }
+      if (!$("best-of").checked) { guard(send)({force_N: f}).catch(function (e) { fail(e); }); return; }
       trials.push(f); $("force").value = "";
       var t = cur.trials, need = trials.length < 2 || (trials.length === 2 && trials[1] > t.third_ratio * trials[0]);
       if (need && trials.length < t.max) { rest(trials.length + 1); return; }
       clearInterval(restTimer);
-      send({trials_N: trials.slice()}).catch(function (e) { trials = []; $("trials").hidden = true; fail(e); });
+      guard(send)({trials_N: trials.slice()}).catch(function (e) { trials = []; $("trials").hidden = true; fail(e); });
     });
-    $("skip").addEventListener("click", function () { api("POST", base + "/skip", {expect_step: cur.snapshot.step}).then(after).catch(function (e) { fail(e); }); });
-    $("undo").addEventListener("click", function () { api("POST", base + "/undo", {expect_step: cur.snapshot.step}).then(after).catch(function (e) { fail(e); }); });
+    function post(what) { return function () { return api("POST", base + "/" + what, {expect_step: cur.snapshot.step}).then(after); }; }
+    $("skip").addEventListener("click", function () { guard(post("skip"))().catch(function (e) { fail(e); }); });
+    $("undo").addEventListener("click", function () { guard(post("undo"))().catch(function (e) { fail(e); }); });
     $("stop").addEventListener("click", function () {
       $("stop").disabled = true; $("message").textContent = "Writing the summary …";
       api("POST", base + "/stop", {expect_step: cur.snapshot.step}).then(function () { location.href = "/s/" + encodeURIComponent(name) + "/end"; })
