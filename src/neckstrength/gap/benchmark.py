@@ -32,7 +32,8 @@ from neckstrength.wrench.batched import single_threaded_blas
 
 @dataclass(frozen=True)
 class BenchmarkSettings:
-    effects: tuple[str, ...] = ("cocontraction", "direction_tolerance", "kinematic", "origin_offset")
+    effects: tuple[str, ...] = ("cocontraction", "direction_tolerance", "kinematic", "asymmetry", "finer_groups",
+                                "origin_offset", "point_scale", "shoulder_girdle")
     pairs: tuple[tuple[str, str], ...] = ()
     replicates: int = 2
     controls: int = 2

@@ -27,7 +27,8 @@ class SessionSettings:
     gain_frac: float = 0.2                     # chapter6.stop.gain_frac (--stop-frac overrides)
     criterion: str = "thesis"                  # clinician.session.<model>.criterion (--criterion overrides)
     n_candidates: int | None = None            # clinician.session.<model>.n_candidates (None: chapter6's)
-    postures: tuple[str, ...] = ("neutral",)   # postures.postures: the postures '--postures all' means
+    postures: tuple[str, ...] = ("neutral", "flex20", "ext20", "rotL30", "rotR30", "bendL15", "bendR15")
+                                               # postures.postures: the postures '--postures all' means
     force_length: str = "relative"             # postures.force_length
     model_dir: str = "data/model"              # data.model_dir: the posture tables
-    test_point_spec: str | None = None         # geometry.test_point_spec: where to push, on the main screen
+    test_point_spec: str | None = "data/geometry/test_point_spec.csv"   # geometry.test_point_spec: where to push
