@@ -125,3 +125,25 @@ def test_postures_legends_cover_no_bar(tmp_path, figures):
     fig = figures[-1]
     assert len(fig.legends) == 1 and not _overlaps(fig)
     assert "tests: neutral 10, postures 10" in fig.axes[1].get_title()
+
+
+def test_png_figures_are_palette_images(tmp_path):
+    """Figures are written as 256-colour PNGs (about a third of the RGBA bytes: the report embeds every one)."""
+    from PIL import Image
+
+    from neckstrength.plotting import save_png
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    x = np.linspace(0, 10, 200)
+    for k in range(6):
+        ax.plot(x, np.sin(x + k), label=f"line {k}")
+    ax.set_xlabel("x")
+    ax.legend()
+    fig.savefig(tmp_path / "rgba.png", dpi=110)
+    save_png(fig, tmp_path / "palette.png")
+    plt.close(fig)
+    rgba, pal = Image.open(tmp_path / "rgba.png"), Image.open(tmp_path / "palette.png")
+    assert pal.mode == "P" and pal.size == rgba.size
+    assert (tmp_path / "palette.png").stat().st_size < 0.6 * (tmp_path / "rgba.png").stat().st_size
+    diff = np.abs(np.asarray(pal.convert("RGB"), float) - np.asarray(rgba.convert("RGB"), float))
+    assert diff.mean() < 2.0                               # on a 0-255 scale: the same picture

@@ -14,6 +14,7 @@ from neckstrength.abc.smc import SMCSettings, abc_smc
 from neckstrength.config import full_model_from_config, joint_settings, model_from_config
 from neckstrength.io import atomic_write_csv
 from neckstrength.pipeline.common import load_directions
+from neckstrength.plotting import save_png
 from neckstrength.postures.compare import ComparisonSettings, compare_postures, first_picks, summarize
 from neckstrength.postures.datasets import posture_dataset, posture_grid
 from neckstrength.postures.model import build_posture_set
@@ -71,7 +72,7 @@ def fig_postures(summary: pd.DataFrame, ident: pd.DataFrame, picks: pd.DataFrame
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower left", bbox_to_anchor=(0.02, 0.0), ncol=len(labels), fontsize=8)
     fig.tight_layout(rect=(0, 0.08, 1, 1))
-    fig.savefig(out_png, dpi=110)
+    save_png(fig, out_png)
     plt.close(fig)
 
 
