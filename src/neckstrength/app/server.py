@@ -28,6 +28,7 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Redirect
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from pydantic import BaseModel, ConfigDict, Field
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from neckstrength.app.security import LOCAL_HOSTS, TokenHostMiddleware
 from neckstrength.app.sessions import NAME_RE, TRIALS, Conflict, NotFound, Registry, check_name
@@ -153,6 +154,12 @@ def create_app(root: str | Path = "sessions", token: str = "", config: str = "co
             out.append({"loc": [str(x) for x in e.get("loc", ())], "msg": str(e.get("msg", "")),
                         "type": str(e.get("type", ""))})
         return JSONResponse({"detail": out}, status_code=422)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(request, exc):
+        what = {404: "no such page or API path", 405: f"method {request.method} is not allowed here"}
+        return JSONResponse({"detail": [{"loc": ["path"], "msg": what.get(exc.status_code, str(exc.detail)),
+                                         "type": "http"}]}, status_code=exc.status_code, headers=exc.headers)
 
     @app.exception_handler(FieldError)
     async def _field(request, exc):
