@@ -124,3 +124,10 @@ def test_discrimination_pool_has_the_posture_tests_predicted_in_their_posture(cf
     np.testing.assert_allclose(np.exp(pr.log_force[K + K:K + 2 * K]), f_ext, rtol=1e-6)
     assert np.all(np.diag(pr.cov)[K:] > 0)
     assert not np.allclose(pr.log_force[K:2 * K], pr.log_force[2 * K:3 * K])
+
+
+def test_advice_says_when_every_size_is_unproducible():
+    pw = pd.DataFrame([{"effect": "a", "protocol": p, "size_share": u, "theta": "x", "unproducible": True,
+                        "power": np.nan} for p in PROTOCOLS for u in (0.5, 1.0)])
+    line = advice(pw, None, ProtocolSettings(target=0.8), 0.08, ["a"])[0]["line"]
+    assert "unproducible" in line and "from noise" not in line

@@ -302,6 +302,13 @@ def advice(power: pd.DataFrame, simulated: pd.DataFrame | None, s: ProtocolSetti
                         "basis": "simulated", "line": f"`{name}`: the present tests tell it from noise from "
                         f"{u_sim:g} of its range (simulated power >= {s.target:g})"})
             continue
+        mine = power[power["effect"] == name]
+        if len(mine) and "unproducible" in mine and mine["unproducible"].astype(bool).all():
+            out.append({"effect": name, "protocol": "-", "size_share": np.nan, "power": np.nan, "basis": "-",
+                        "line": f"`{name}`: at every simulated size it leaves some test unproducible at this data "
+                        "set's fitted strengths, so no protocol's power is computed (the calibration skips such "
+                        "truths too)"})
+            continue
         g = power[(power["effect"] == name) & (power["power"] >= s.target)]
         if sim:
             g = g[g["protocol"] != "directions"]

@@ -242,7 +242,8 @@ def _protocol_lines(diag: DatasetDiagnosis) -> list[str]:
     tab = getattr(diag, "protocols", pd.DataFrame())
     lines = ["## What to measure to tell", ""]
     if len(tab):
-        piv = tab.pivot_table(index=["effect", "size_share"], columns="protocol", values="power", sort=False)
+        piv = tab.pivot_table(index=["effect", "size_share"], columns="protocol", values="power", sort=False,
+                              dropna=False)
         piv = piv.reset_index()
         k = s.get("protocol_efficiency", np.nan)
         scale = (f"with the noncentrality divided by {k:.3g}, the factor that matches the present tests' linearised "
