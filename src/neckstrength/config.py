@@ -677,7 +677,17 @@ def gap_settings_text(config: Mapping, s: DiagnosisSettings) -> str:
                       f"screen (measured and simulated data alike): {s.calibration.starts} start(s), max_iter "
                       f"{s.calibration.max_iter}",
                       *_discriminate_text(config),
+                      _protocols_text(s),
                       f"- seed {config['seed']}"])
+
+
+def _protocols_text(s: DiagnosisSettings) -> str:
+    p = s.protocols
+    if p is None:
+        return "- what to measure to tell: not computed (`gap.protocols` absent or disabled)"
+    return (f"- what to measure to tell (gap.protocols): power of the present tests, {p.repeats} trials per direction, "
+            f"the tests in {', '.join(p.postures) or 'no posture'}, surface EMG (SD {p.emg_sd:g}) and all of them, "
+            f"at sizes {list(p.sizes or s.calibration.power_sizes)}; linearised, scaled to the simulated power")
 
 
 def _discriminate_text(config: Mapping) -> list[str]:
