@@ -95,6 +95,19 @@ def clinician_view(snap: dict) -> dict:
             mean = (g["estimate_N"] + left["estimate_N"]) / 2
             asym.append({"code": g["code"], "name": g["name"], "right_N": g["estimate_N"], "left_N": left["estimate_N"],
                          "right_minus_left_pct": _pct(g["estimate_N"] - left["estimate_N"], mean)})
+    table, seen = [], set()              # one row per group code: both sides side by side where paired
+    for g in groups:
+        if g["code"] in seen and g["side"]:
+            continue
+        pair = [x for x in groups if x["code"] == g["code"] and x["side"]] if g["side"] else []
+        if len(pair) == 2:
+            seen.add(g["code"])
+            a = next((x for x in asym if x["code"] == g["code"]), None)
+            table.append({"code": g["code"], "name": g["name"], "cells": pair,
+                          "right_minus_left_pct": a["right_minus_left_pct"] if a else None})
+        else:
+            table.append({"code": g["muscle"], "name": g["name"] + (f" ({g['side']})" if g["side"] else ""),
+                          "cells": [g], "right_minus_left_pct": None})
     readings = []
     for m in snap["measurements"]:
         p = m["predicted_N"]
@@ -109,7 +122,7 @@ def clinician_view(snap: dict) -> dict:
                   "trend": dec["trend"], "decision": dec.get("decision"), "calibrated": bool(dec.get("calibrated")),
                   "label": dec["label"], "settings_label": dec.get("settings_label"),
                   "definition": dec.get("definition")}
-    return {"groups": groups, "legend": legend([r["muscle"] for r in rows]), "asymmetry": asym,
+    return {"groups": groups, "table": table, "paired": bool(asym), "legend": legend([r["muscle"] for r in rows]), "asymmetry": asym,
             "readings": readings, "retest_label": RETEST_LABEL, "reference_label": REFERENCE_LABEL,
             "uncertainty_label": snap["estimate"]["uncertainty_label"],
             "uncertainty_calibrated": bool(snap["estimate"].get("calibrated")),
