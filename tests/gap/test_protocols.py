@@ -92,6 +92,8 @@ def test_every_calibrated_report_ends_with_the_advice(ctx_p2, tmp_path):
                                                                      power_replicates=2, sensitivity=False),
                              protocols=ProtocolSettings())
     d = dg.diagnose(ctx_p2, data, s)[0]
+    # the calibration's power table has the new effect like the others: one row per effect and size
+    assert list(d.power["effect"]) == ["kinematic", "posture_drift"] and (d.power["replicates"] <= 2).all()
     assert set(d.protocols["effect"]) == {"kinematic", "posture_drift"}
     k = d.summary["protocol_efficiency"]
     assert (k >= 1.0 or np.isnan(k)) and len(d.summary["protocol_advice"]) == 2
