@@ -167,7 +167,7 @@ def run_estimate(settings: EstimateSettings, model: ReducedModel, directions: pd
             figs = {"traces": out / "fig_estimate_traces.png", "dk_hist": out / "fig_dk_hist.png",
                     "d_dir": out / "fig_d_by_direction.png", "parallel": out / "fig_parallel.png",
                     "radar": out / "fig_fit_radar.png"}
-            alg4_figures(run.tables(), d_used, model_name, participant, figs)
+            alg4_figures(run.tables(), d_used, model_name, participant, figs, run.summary())
         res = run.result
         summary.update({"iterations": res.iterations, "converged": res.converged, "D_fc": res.D_fc,
                         "scale_a": run.a, "estimate": str(outputs["estimate"])})

@@ -42,6 +42,7 @@ rule chapter5_figures:
         d_by_direction="results/chapter5/{model}/{dataset}/d_by_direction.csv",
         fit="results/chapter5/{model}/{dataset}/fit.csv",
         candidates="results/chapter5/{model}/{dataset}/candidates.csv",
+        summary="results/chapter5/{model}/{dataset}/summary.json",
     output:
         traces=report(
             "results/chapter5/{model}/{dataset}/fig_estimate_traces.png",

@@ -111,7 +111,7 @@ def write_alg4(run: Alg4Run, outputs: Mapping[str, str | Path]) -> None:
 
 
 def alg4_figures(tables: Mapping[str, pd.DataFrame], directions: pd.DataFrame, model_name: str, dataset: str,
-                 outputs: Mapping[str, str | Path]) -> None:
+                 outputs: Mapping[str, str | Path], summary: Mapping | None = None) -> None:
     """Figs. 5.4-5.9 of one run from its tables (:meth:`Alg4Run.tables`, or the files :func:`write_alg4` wrote);
     ``outputs``: traces, dk_hist, d_dir, parallel, radar."""
     from neckstrength.abc.plots import abc_traces, d_by_direction_plot, dk_histograms, parallel_coordinates
@@ -121,9 +121,10 @@ def alg4_figures(tables: Mapping[str, pd.DataFrame], directions: pd.DataFrame, m
     truth = est.groupby("parameter")["f_actual"].first()
     base = est.groupby("parameter")["f_base"].first()
     tag = f"{model_name}, {dataset}"
-    abc_traces(tables["history"], truth, base, outputs["traces"], f"Estimate per iteration ({tag}): f_c black, "
-               "f_c(1 +- sigma) blue dashed (sampling width, a heuristic: not an interval), truth red dashed, "
-               "f'_base x")
+    run = dict(summary or {})      # :meth:`Alg4Run.summary`: the traces' title says whether the run converged
+    abc_traces(tables["history"], truth, base, outputs["traces"], f"Estimate per iteration of Algorithm 4 ({tag})",
+               converged=run.get("converged"), iterations=run.get("iterations"), D_fc=run.get("D_fc"),
+               eps_D=(run.get("settings") or {}).get("eps_D"))
     dk_histograms(tables["dk_hist"], outputs["dk_hist"], f"Composite scores D_k per iteration ({tag})")
     d_by_direction_plot(tables["d_by_direction"], outputs["d_dir"], f"Scores d_ik by direction, last iteration ({tag})")
     parallel_coordinates(tables["candidates"], truth, outputs["parallel"],

@@ -45,7 +45,8 @@ def chapter5_figures(config: Mapping, model_name: str, dataset: str, directions_
                       outputs: Mapping[str, str]) -> None:
     tables = {k: pd.read_csv(inputs[k], comment="#") for k in ("estimate", "history", "dk_hist", "d_by_direction",
                                                                 "fit", "candidates")}
-    alg4_figures(tables, load_directions(directions_csv), model_name, dataset, outputs)
+    summary = json.loads(Path(inputs["summary"]).read_text()) if inputs.get("summary") else None
+    alg4_figures(tables, load_directions(directions_csv), model_name, dataset, outputs, summary)
 
 
 def chapter5_table(config: Mapping, model_name: str, datasets: Sequence[str], estimates: Sequence[str],
