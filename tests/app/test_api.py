@@ -104,7 +104,8 @@ def test_token_and_host(make_app):
     assert c.get("/api/sessions", headers={"X-Neckstrength-Token": "wrong"}).status_code == 403
     assert c.get("/", params={"token": TOKEN[:-1]}).status_code == 403
     r = c.get("/", params={"token": TOKEN})              # the URL the app prints: sets the cookie
-    assert r.status_code == 200 and "HttpOnly" in r.headers["set-cookie"] and "SameSite=Strict" in r.headers["set-cookie"]
+    cookie = r.headers["set-cookie"]
+    assert r.status_code == 200 and "HttpOnly" in cookie and "SameSite=Strict" in cookie
     assert c.get("/api/sessions").status_code == 200     # GET with the cookie
     r = c.post("/api/sessions", json={"name": "X", **P2M7})   # a write with the cookie only: refused
     assert r.status_code == 403 and "X-Neckstrength-Token" in r.json()["detail"][0]["msg"]
@@ -196,7 +197,8 @@ def test_locked_folder_is_refused_clearly(client, cache_dir):
     Session.create(folder, opts, threads=1)
     release(folder)
     holder = subprocess.Popen([sys.executable, "-c", "import fcntl,sys,time; f=open(sys.argv[1],'a+'); "
-                               "fcntl.flock(f, fcntl.LOCK_EX); f.write('pid terminal'); f.flush(); print('ok', flush=True);"
+                               "fcntl.flock(f, fcntl.LOCK_EX); f.write('pid terminal'); f.flush(); "
+                               "print('ok', flush=True);"
                                " time.sleep(60)", str(folder / "session.lock")], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "ok"

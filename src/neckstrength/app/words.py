@@ -122,7 +122,8 @@ def clinician_view(snap: dict) -> dict:
                   "trend": dec["trend"], "decision": dec.get("decision"), "calibrated": bool(dec.get("calibrated")),
                   "label": dec["label"], "settings_label": dec.get("settings_label"),
                   "definition": dec.get("definition")}
-    return {"groups": groups, "table": table, "paired": bool(asym), "legend": legend([r["muscle"] for r in rows]), "asymmetry": asym,
+    return {"groups": groups, "table": table, "paired": bool(asym), "legend": legend([r["muscle"] for r in rows]),
+            "asymmetry": asym,
             "readings": readings, "retest_label": RETEST_LABEL, "reference_label": REFERENCE_LABEL,
             "uncertainty_label": snap["estimate"]["uncertainty_label"],
             "uncertainty_calibrated": bool(snap["estimate"].get("calibrated")),
