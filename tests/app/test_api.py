@@ -207,3 +207,14 @@ def test_locked_folder_is_refused_clearly(client, cache_dir):
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_pages_escape_what_a_user_typed(client):
+    """A participant name with markup is shown as text on every page and in the report, never run."""
+    _create(client, participant='<script>alert(1)</script>"x')
+    client.post("/api/sessions/P01/tell", json={"force_N": 150})
+    client.post("/api/sessions/P01/stop", json={})
+    for path in ("/", "/s/P01/end", "/s/P01/report"):
+        html = client.get(path).text
+        assert "<script>alert(1)" not in html and "&lt;script&gt;alert(1)&lt;/script&gt;" in html, path
+    assert "<script>alert(1)" not in (client.root / "P01" / "report.html").read_text()

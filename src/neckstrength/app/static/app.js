@@ -133,7 +133,7 @@ var NS = (function () {
         $("where").textContent = "Stop to write the summary, or undo."; $("head").innerHTML = "";
       }
       $("record").disabled = !(p && p.test) && !$("other-test").value;
-      $("recommendation").textContent = snap.recommendation.text;
+      $("recommendation").textContent = (st.stopped ? "This session was stopped and its summary written (end page); a new entry continues it. " : "") + snap.recommendation.text;
       $("recommendation").className = "recommendation" + (snap.recommendation.stop ? " stop" : "");
       $("alternatives").innerHTML = p ? bars(p.alternatives) : "";
       $("alt-label").textContent = p ? p.score_name + " (" + p.units + ") of each remaining test, best first" : "";
