@@ -17,19 +17,57 @@ HDR = {"X-Neckstrength-Token": TOKEN}
 P2M7 = {"model": "p2m7", "participant": "P01", "n_candidates": 2000, "seed": 7}
 
 
+SHARED_BROWSER = ROOT / "tests" / "browser" / "conftest.py"
+
+
 def _shared_browser_fixtures():
-    """tests/browser/conftest.py loaded under its own name (its fixtures: ``browser``, ``page_at``)."""
+    """tests/browser/conftest.py (the shared headless Chromium: ``browser``, ``page_at``) loaded under its own name."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("_neckstrength_browser_fixtures",
-                                                  ROOT / "tests" / "browser" / "conftest.py")
+    spec = importlib.util.spec_from_file_location("_neckstrength_browser_fixtures", SHARED_BROWSER)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
 
 
-_b = _shared_browser_fixtures()
-browser, page_at, chromium_path = _b.browser, _b.page_at, _b.chromium_path
+if SHARED_BROWSER.is_file():
+    _b = _shared_browser_fixtures()
+    browser, page_at, chromium_path = _b.browser, _b.page_at, _b.chromium_path
+else:                                   # the same launch, until the shared set-up is in the tree
+    import os
+    import shutil
+
+    def chromium_path() -> str:
+        """Debian's chromium (``$CHROMIUM`` first); never Playwright's own browser download."""
+        for name in (os.environ.get("CHROMIUM"), "chromium", "chromium-browser"):
+            if name and shutil.which(name):
+                return shutil.which(name)
+        raise RuntimeError("no Chromium found: install Debian's `chromium` (apt-get install chromium) or set CHROMIUM")
+
+    @pytest.fixture(scope="session")
+    def browser():
+        from playwright.sync_api import sync_playwright
+
+        with sync_playwright() as p:
+            b = p.chromium.launch(executable_path=chromium_path(), headless=True,
+                                  args=["--no-sandbox", "--disable-gpu"])
+            try:
+                yield b
+            finally:
+                b.close()
+
+    @pytest.fixture
+    def page_at(browser):
+        contexts = []
+
+        def make(width: int = 1400, height: int = 1000):
+            ctx = browser.new_context(viewport={"width": width, "height": height})
+            contexts.append(ctx)
+            return ctx.new_page()
+
+        yield make
+        for ctx in contexts:
+            ctx.close()
 
 
 @pytest.fixture(scope="session")
