@@ -161,7 +161,11 @@ def build_dataset(model: ReducedModel, directions: pd.DataFrame, dataset: str, c
                   thesis_dir: str | Path, measurements: str | Path, activations: str | Path) -> Dataset:
     """:func:`load_dataset` with its settings read from a config section (``chapter5``; to go: callers pass
     :class:`DatasetSettings` built by ``neckstrength.config.dataset_settings``)."""
-    s = DatasetSettings(tuple(cfg.get("emg_groups", {}).get(model.name, [])), bool(cfg.get("simulated_emg", False)),
-                        cfg.get("simulated_emg_band", 0.05), cfg.get("participant_emg", "none"),
-                        cfg.get("participant_emg_band", 0.2))
+    groups = tuple(cfg.get("emg_groups", {}).get(model.name, []))
+    if dataset in ("norm", "weak"):     # reads only the keys this kind of data set uses (a rule declares those)
+        s = DatasetSettings(groups, simulated_emg=bool(cfg.get("simulated_emg", False)),
+                            simulated_emg_band=cfg.get("simulated_emg_band", 0.05))
+    else:
+        s = DatasetSettings(groups, participant_emg=cfg.get("participant_emg", "none"),
+                            participant_emg_band=cfg.get("participant_emg_band", 0.2))
     return load_dataset(model, directions, dataset, s, thesis_dir, measurements, activations)
