@@ -702,6 +702,23 @@ def _discriminate_text(config: Mapping) -> list[str]:
             f"{list(d.elevation_deg) if d.surface else ''}")]
 
 
+# --- the thesis scorecard -----------------------------------------------------------------------------------------
+
+
+def scorecard_settings(config: Mapping):
+    """:class:`neckstrength.report.scorecard.settings.ScorecardSettings`: what the scorecard reads of the config."""
+    from neckstrength.report.scorecard.settings import ScorecardSettings
+
+    m, c4, c5 = config["model"], config["chapter4"], config["chapter5"]
+    return ScorecardSettings(seed=int(config["seed"]), thesis_dir=str(config["data"]["thesis_dir"]),
+                             model_dir=str(config["data"]["model_dir"]),
+                             unprinted_strengths=m["unprinted_strengths"],
+                             grouping_supplements=m["grouping_supplements"], apply_b1_errata=m["apply_b1_errata"],
+                             mixed_model_alpha=config["chapter3"]["mixed_model"]["alpha"], eps_D=c5["eps_D"],
+                             sigma_clip=tuple(c5["sigma_clip"]), claim_tolerance_rel=c4["claim_tolerance_rel"],
+                             anterior_max_azimuth_deg=c4["anterior_max_azimuth_deg"])
+
+
 # --- identifiability (issue 31 item 1) ------------------------------------------------------------------------
 
 

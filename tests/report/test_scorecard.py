@@ -9,6 +9,7 @@ Fast: no pipeline run (synthetic rows and small synthetic tables in a temporary 
 """
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -16,9 +17,9 @@ import pytest
 
 from neckstrength.report.scorecard import (BY_CONSTRUCTION, CALIBRATED, CONCLUSION_TESTS, DIFFERS, INDEPENDENT,
                                            MATCHES, NOT_EVALUATED, SAME_CONCLUSION, _row, build_scorecard,
-                                           chance_rates, summarize, tolerance_table, tolerances)
+                                           ScorecardSettings, chance_rates, summarize, tolerance_table, tolerances)
 
-CONFIG = {"seed": 20261123}
+CONFIG = ScorecardSettings(seed=20261123)
 N = 8
 
 
@@ -151,7 +152,7 @@ def test_censored_iterations_compared_as_censored(tmp_path):
         ("C", 11, 30, "ours did not converge"),                             # thesis converged
         ("D", 11, 12, ""),                                                  # both converged, within 20 %
     ])
-    cfg = {"seed": 1, "data": {"thesis_dir": str(tmp_path / "none")}}
+    cfg = ScorecardSettings(seed=1, thesis_dir=str(tmp_path / "none"))
     sc, _ = build_scorecard([str(path)], cfg)
     v = dict(zip(sc["item"], sc["verdict"]))
     assert v["A: iters"] == MATCHES
@@ -185,8 +186,8 @@ def _b3_fixture(tmp_path):
 @pytest.mark.parametrize("source,expect_calibrated", [("b3_implied", 2), ("osim", 0)])
 def test_recovered_strengths_count_as_calibrated_items(tmp_path, source, expect_calibrated):
     path, model_dir = _b3_fixture(tmp_path)
-    cfg = {"seed": 1, "data": {"model_dir": str(model_dir), "thesis_dir": str(tmp_path / "none")},
-           "model": {"unprinted_strengths": source, "grouping_supplements": False}}
+    cfg = ScorecardSettings(seed=1, model_dir=str(model_dir), thesis_dir=str(tmp_path / "none"),
+                            unprinted_strengths=source, grouping_supplements=False)
     sc, _ = build_scorecard([str(path)], cfg)
     g1 = sc[sc["item"].str.startswith("g1-R")]
     g2 = sc[sc["item"].str.startswith("g2-R")]
@@ -256,7 +257,7 @@ def _b1_fixture(tmp_path, errata=True):
         "11,sternohyoid,C4-C5,pitch,-0.0509,-0.050926,-2.6e-05,-0.0005\n"
         "11,sternohyoid,C6-C7,pitch,-0.0453,-0.045290,1e-05,0.0002\n"
         "33,long cap sklc4,C0-C1,pitch,-0.0120,-0.012010,-1e-05,-0.0008\n")
-    cfg = {"seed": 1, "data": {"thesis_dir": str(thesis)}, "model": {"apply_b1_errata": errata}}
+    cfg = ScorecardSettings(seed=1, thesis_dir=str(thesis), apply_b1_errata=errata)
     return d / "momentarm_vs_B1.csv", cfg
 
 
@@ -304,7 +305,7 @@ def test_d_fc_at_the_noise_free_ceiling_is_by_construction(tmp_path):
         ("weak", "D_fc", "", 0.99, 0.96, ""),         # ours below it: a real difference
         ("S005", "D_fc", "", 0.995, 0.999, ""),       # a participant's data are not noise-free
     ])
-    sc, _ = build_scorecard([str(path)], {"seed": 1, "data": {"thesis_dir": str(tmp_path / "none")}})
+    sc, _ = build_scorecard([str(path)], ScorecardSettings(seed=1, thesis_dir=str(tmp_path / "none")))
     kind, verdict = _kinds(sc)
     assert kind == {"norm: D_fc": BY_CONSTRUCTION, "weak: D_fc": INDEPENDENT, "S005: D_fc": INDEPENDENT}
     assert verdict["norm: D_fc"] == MATCHES and verdict["weak: D_fc"] != MATCHES
@@ -318,14 +319,14 @@ def test_sigma_c_at_a_clip_limit_on_both_sides_is_by_construction(tmp_path):
         ("S005", "sigma_c", "TC-F", 0.30, 0.28, ""),   # ours below the limit: matches, and that is evidence
         ("S005", "sigma_c", "TS-F", 0.12, 0.12, ""),   # inside the range
     ])
-    cfg = {"seed": 1, "data": {"thesis_dir": str(tmp_path / "none")}, "chapter5": {"sigma_clip": [0.01, 0.3]}}
+    cfg = ScorecardSettings(seed=1, thesis_dir=str(tmp_path / "none"), sigma_clip=(0.01, 0.3))
     sc, _ = build_scorecard([str(path)], cfg)
     kind, verdict = _kinds(sc)
     assert kind == {"S005: TC-E sigma_c": BY_CONSTRUCTION, "S005: TS-B sigma_c": BY_CONSTRUCTION,
                     "S005: TC-F sigma_c": INDEPENDENT, "S005: TS-F sigma_c": INDEPENDENT}
     assert set(verdict.values()) == {MATCHES}
     # the limits come from the config: with another clip range the same numbers are independent
-    cfg["chapter5"]["sigma_clip"] = [0.02, 0.5]
+    cfg = replace(cfg, sigma_clip=(0.02, 0.5))
     sc2, _ = build_scorecard([str(path)], cfg)
     assert (sc2["kind"] == INDEPENDENT).all()
 
@@ -336,7 +337,7 @@ def test_censored_iteration_counts_on_both_sides_are_by_construction(tmp_path):
         ("B", 30, 29, "thesis did not converge"),
         ("D", 11, 12, ""),
     ])
-    sc, _ = build_scorecard([str(path)], {"seed": 1, "data": {"thesis_dir": str(tmp_path / "none")}})
+    sc, _ = build_scorecard([str(path)], ScorecardSettings(seed=1, thesis_dir=str(tmp_path / "none")))
     kind, verdict = _kinds(sc)
     assert kind == {"A: iters": BY_CONSTRUCTION, "B: iters": INDEPENDENT, "D: iters": INDEPENDENT}
     assert verdict["A: iters"] == MATCHES and "maxIter" in sc.loc[sc["item"] == "A: iters", "basis"].item()
@@ -353,7 +354,7 @@ def test_a_scorer_error_is_not_evaluated_with_its_reason(tmp_path):
         ("weak", "f_c", "TC-E", 68, 57, ""),
         ("weak", "sigma_c", "TC-E", 0.05, 0.06, ""),
     ])
-    sc, skipped = build_scorecard([str(path)], {"seed": 1, "data": {"thesis_dir": str(tmp_path / "none")}})
+    sc, skipped = build_scorecard([str(path)], ScorecardSettings(seed=1, thesis_dir=str(tmp_path / "none")))
     assert not sc["item"].str.contains("identified with high confidence").any()
     claim = skipped[skipped["item"].str.contains("identified with high confidence")]
     assert len(claim) == 1 and claim["verdict"].item() == NOT_EVALUATED

@@ -7,6 +7,7 @@ from typing import Iterable, Mapping, Sequence
 
 import pandas as pd
 
+from neckstrength.config import scorecard_settings
 from neckstrength.report.runinfo import environment_table, runtime_by_rule, runtime_table
 from neckstrength.report.scorecard import (
     build_scorecard,
@@ -55,8 +56,9 @@ def report_scorecard(config: Mapping, inputs: Sequence[str], out_table, out_summ
     from neckstrength.io import atomic_write_csv
 
     tols = tolerances(overrides)
-    scored, skipped = build_scorecard(list(inputs), config, overrides)
-    atomic_write_csv(scored, out_table, header_lines(config, tols), float_format="%.5g")
+    settings = scorecard_settings(config)
+    scored, skipped = build_scorecard(list(inputs), settings, overrides)
+    atomic_write_csv(scored, out_table, header_lines(settings, tols), float_format="%.5g")
     summary = summarize(scored, skipped)
     atomic_write_csv(summary, out_summary,
                      ["thesis scorecard summary: items per chapter, kind and verdict (results/report/scorecard.csv)",

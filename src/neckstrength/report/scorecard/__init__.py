@@ -176,6 +176,7 @@ from neckstrength.report.scorecard.sources import (  # noqa: F401
     scorecard_inputs,
     source_for,
 )
+from neckstrength.report.scorecard.settings import ScorecardSettings  # noqa: F401
 from neckstrength.report.scorecard.build import (  # noqa: F401
     SUMMARY_COLUMNS,
     _agreement,
@@ -213,6 +214,7 @@ __all__ = [
     "SIGMA_CLIP",
     "SOURCES",
     "SUMMARY_COLUMNS",
+    "ScorecardSettings",
     "TOLERANCES",
     "VERDICTS",
     "ConclusionTest",

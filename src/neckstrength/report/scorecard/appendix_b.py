@@ -8,11 +8,11 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
-from typing import Mapping
 
 import pandas as pd
 
 from neckstrength.report.scorecard.rows import B_TABLES, GROUPING_FILES, Context, _key, _read, _row, _sign
+from neckstrength.report.scorecard.settings import ScorecardSettings
 from neckstrength.report.scorecard.tolerances import (
     BY_CONSTRUCTION,
     CALIBRATED,
@@ -24,30 +24,29 @@ from neckstrength.report.scorecard.tolerances import (
 )
 
 
-def recovered_strengths(config: Mapping) -> dict[str, dict]:
+def recovered_strengths(settings: ScorecardSettings) -> dict[str, dict]:
     """Muscles whose strength was recovered from Table B.3 in this configuration (name -> record of
     ``b3_implied_strengths.csv``); empty with ``model.unprinted_strengths: osim``."""
-    m = config.get("model", {})
-    if m.get("unprinted_strengths", "b3_implied") != "b3_implied":
+    if settings.unprinted_strengths != "b3_implied":
         return {}
-    path = Path(config.get("data", {}).get("model_dir", "data/model")) / "b3_implied_strengths.csv"
+    path = Path(settings.model_dir) / "b3_implied_strengths.csv"
     if not path.exists():
         return {}
     df = _read(path)
     return {_key(r["name"]): r for r in df.to_dict("records")}
 
 
-def supplemented_groups(config: Mapping, model: str) -> dict[str, str]:
+def supplemented_groups(settings: ScorecardSettings, model: str) -> dict[str, str]:
     """Groups of ``model`` whose membership an applied supplement with basis 'fit' changes (a row of
     ``grouping_supplements.csv`` that exists only to reproduce a printed value; applied with
     ``model.grouping_supplements: all``): group (as named in the printed grouping table) -> the supplements.
     Supplements justified by the printed tables or by anatomy (basis 'printed' / 'anatomy') calibrate nothing."""
     from neckstrength.model.reduction import supplement_level
 
-    level = supplement_level(config.get("model", {}).get("grouping_supplements", True))
+    level = supplement_level(settings.grouping_supplements)
     if level != "all":
         return {}
-    thesis_dir = Path(config.get("data", {}).get("thesis_dir", "data/thesis"))
+    thesis_dir = Path(settings.thesis_dir)
     path = thesis_dir / "grouping_supplements.csv"
     if not path.exists():
         return {}
@@ -67,8 +66,8 @@ def supplemented_groups(config: Mapping, model: str) -> dict[str, str]:
 
 def _group_calibration(ctx: Context, model: str, groups: pd.DataFrame | None) -> dict[str, tuple[int, str]]:
     """Per group of a named model: (number of its items that are calibrated, why); -1 = all of them."""
-    rec = recovered_strengths(ctx.config)
-    sup = supplemented_groups(ctx.config, model)
+    rec = recovered_strengths(ctx.settings)
+    sup = supplemented_groups(ctx.settings, model)
     out = {}
     if groups is None:
         if rec or sup:
@@ -167,16 +166,16 @@ def score_b_params(ctx: Context) -> list[dict]:
     return rows
 
 
-def b1_errata_from_derivation(config: Mapping) -> dict[tuple[int, str], str]:
+def b1_errata_from_derivation(settings: ScorecardSettings) -> dict[tuple[int, str], str]:
     """Table B.1 cells that the erratum (``errata_B1.csv``, applied with ``model.apply_b1_errata``) relocated or
     inserted because they equal our derived moment arms: (row index, 'joint_axis') -> the erratum's evidence.
 
     An erratum row counts when it sets a value (``corrected`` not empty) and its evidence cites the derivation
     (the word 'derived'); a relocation justified by another printed table (rows 33/34 from Table B.3) does not.
     Empty without the erratum applied."""
-    if not config.get("model", {}).get("apply_b1_errata", True):
+    if not settings.apply_b1_errata:
         return {}
-    path = Path(config.get("data", {}).get("thesis_dir", "data/thesis")) / "errata_B1.csv"
+    path = Path(settings.thesis_dir) / "errata_B1.csv"
     if not path.exists():
         return {}
     err = _read(path)
@@ -192,7 +191,7 @@ def score_b1(ctx: Context) -> list[dict]:
     df = _read(ctx.path)
     df = df[df["joint"] != "strength"]  # B.1 strengths are inputs (used as printed), not reproduced
     t = ctx.tols["b1_moment_arm_m"]
-    errata = b1_errata_from_derivation(ctx.config)
+    errata = b1_errata_from_derivation(ctx.settings)
     rows = []
     for r in df.to_dict("records"):
         th, o = _num(r["thesis_B1"]), _num(r["derived"])

@@ -13,6 +13,7 @@ import pandas as pd
 
 from neckstrength.report.scorecard.chance import CONCLUSION_TESTS, chance_rates
 from neckstrength.report.scorecard.rows import Context, _reason
+from neckstrength.report.scorecard.settings import ScorecardSettings
 from neckstrength.report.scorecard.sources import source_for
 from neckstrength.report.scorecard.tolerances import (
     BY_CONSTRUCTION,
@@ -71,7 +72,7 @@ def _agreement(df: pd.DataFrame) -> pd.Series:
     return out
 
 
-def build_scorecard(paths: Iterable[str], config: Mapping,
+def build_scorecard(paths: Iterable[str], settings: ScorecardSettings,
                     overrides: Mapping[str, float] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Score every registered comparison table among ``paths``.
 
@@ -86,11 +87,11 @@ def build_scorecard(paths: Iterable[str], config: Mapping,
         if not hit:
             continue
         s, m = hit
-        rows += s.loader(Context(config=config, tols=tols, match=m, path=Path(p), rel=str(p)))
-    return score_rows(rows, config, overrides)
+        rows += s.loader(Context(settings=settings, tols=tols, match=m, path=Path(p), rel=str(p)))
+    return score_rows(rows, settings, overrides)
 
 
-def score_rows(rows: Sequence[dict], config: Mapping,
+def score_rows(rows: Sequence[dict], settings: ScorecardSettings,
                overrides: Mapping[str, float] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Verdicts of loader rows (:func:`_row`): chance rate of each conclusion test on these rows, then per row
     matches / same conclusion (only by a test whose chance rate is small) / differs."""
@@ -101,7 +102,7 @@ def score_rows(rows: Sequence[dict], config: Mapping,
         empty.attrs["chance"] = chance_rates(pd.DataFrame(columns=["_test"]))
         return empty, empty.copy()
     df["_agree"] = _agreement(df)
-    df, chance = _finalize(df, tols, int(config.get("seed", 0) or 0))
+    df, chance = _finalize(df, tols, int(settings.seed))
     order = {c: i for i, c in enumerate(CHAPTER_ORDER)}
     df["_o"] = df["chapter"].map(lambda c: order.get(c, len(order)))
     df = df.sort_values("_o", kind="stable").reset_index(drop=True)
@@ -161,15 +162,14 @@ def _source_family(source: str) -> str:
     return re.sub(r"^Sec\. (\d+\.\d+)\..*$", r"Sec. \1", s)
 
 
-def header_lines(config: Mapping, tols: Mapping[str, Tolerance]) -> list[str]:
+def header_lines(settings: ScorecardSettings, tols: Mapping[str, Tolerance]) -> list[str]:
     over = [k for k, t in tols.items() if t.overridden]
-    m = config.get("model", {})
     return ["thesis scorecard: every number the thesis prints that we reproduce, ours beside it "
             "(neckstrength.report.scorecard; tolerances, conclusion tests and chance rates: scorecard_tolerances.csv)",
             f"kinds: {' / '.join(KINDS)} (calibrated = an input was fitted or drawn to the thesis numbers that "
             f"determine this one; by construction = the agreement follows from the setup, shown but never counted "
             f"as reproduced); verdicts: {' / '.join(VERDICTS)}; difference = ours - thesis; seed "
-            f"{config.get('seed')}",
-            f"model.unprinted_strengths: {m.get('unprinted_strengths', 'b3_implied')}; model.grouping_supplements: "
-            f"{m.get('grouping_supplements', True)}",
+            f"{settings.seed}",
+            f"model.unprinted_strengths: {settings.unprinted_strengths}; model.grouping_supplements: "
+            f"{settings.grouping_supplements}",
             "tolerance overrides from config report.tolerances: " + (", ".join(over) if over else "none")]

@@ -50,7 +50,7 @@ def _parse_p(text: str):
 def score_ch3_statistics(ctx: Context) -> list[dict]:
     df = _read(ctx.path)
     df = df[df["kind"] != "table_3_2"]  # Table 3.2 cells are scored from table_3_2.csv (with n)
-    alpha = float(ctx.config.get("chapter3", {}).get("mixed_model", {}).get("alpha", 0.05))
+    alpha = float(ctx.settings.mixed_model_alpha)
     synth = _ch3_caveats(ctx)
     cal = ("calibrated",) if synth else ()
     kind, basis = _ch3_kind(ctx)

@@ -11,7 +11,6 @@ from neckstrength.report.scorecard.tolerances import _tol_text
 
 def score_ch4_claims(ctx: Context) -> list[dict]:
     df = _read(ctx.path)
-    c4 = ctx.config.get("chapter4", {})
     t = ctx.tols["claim"]
     rows = []
     for r in df.to_dict("records"):
@@ -22,8 +21,8 @@ def score_ch4_claims(ctx: Context) -> list[dict]:
             continue
         rows.append(_row("Chapter 4", f"Sec. {r['section']}", f"{r['claim']} [{r['variants']}]", "holds", verdict,
                          math.nan, verdict == "holds",
-                         _tol_text(t, f"claim check (relative tolerance {c4.get('claim_tolerance_rel', '')}, anterior "
-                                      f"|azimuth| < {c4.get('anterior_max_azimuth_deg', '')} deg)"),
+                         _tol_text(t, f"claim check (relative tolerance {ctx.settings.claim_tolerance_rel}, anterior "
+                                      f"|azimuth| < {ctx.settings.anterior_max_azimuth_deg} deg)"),
                          str(r["numbers"]), ("geometry", "grouping") if "sagittal" in str(r["variants"])
                          else ("geometry",), ctx.rel,
                          basis="computed on the model's strength surfaces; nothing fitted to the claim"))

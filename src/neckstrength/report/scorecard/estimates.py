@@ -29,7 +29,7 @@ def _baseline(df: pd.DataFrame, ctx: Context, model: str | None, thesis_table: s
             return dict(zip(sub["muscle"], sub["thesis"].astype(float)))
     from neckstrength.estimation.datasets import thesis_result_table
 
-    t = thesis_result_table(ctx.config["data"]["thesis_dir"], model or "p2m7", thesis_table)
+    t = thesis_result_table(ctx.settings.thesis_dir, model or "p2m7", thesis_table)
     t = t[(t["quantity"] == "f_a") & t["dataset"].isin(["norm", "Sim"])]
     return dict(zip(t["group"], t["value_numeric"].astype(float)))
 
@@ -39,7 +39,7 @@ def _printed_group_strengths(ctx: Context, model: str | None) -> dict:
     side), the baseline the thesis bootstraps its prior from (Sec. 5.2.2.1, 6.2)."""
     if model not in B_FILES:
         return {}
-    path = Path(ctx.config.get("data", {}).get("thesis_dir", "data/thesis")) / B_FILES[model]
+    path = Path(ctx.settings.thesis_dir) / B_FILES[model]
     if not path.exists():
         return {}
     t = _read(path)
@@ -70,8 +70,8 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
                      thesis_table: str | None) -> list[dict]:
     df = _read(ctx.path)
     tc, tab = (ctx.tols[k] for k in ("estimate_rel", "identified_sigma"))
-    eps_d = float(ctx.config.get("chapter5", {}).get("eps_D", 0.95))
-    clip = [float(x) for x in ctx.config.get("chapter5", {}).get("sigma_clip", SIGMA_CLIP)]
+    eps_d = float(ctx.settings.eps_D)
+    clip = [float(x) for x in ctx.settings.sigma_clip]
     thesis_col = "thesis" if "thesis" in df.columns else "thesis_value"
     ours_col = "ours" if "ours" in df.columns else "ours_value"
     if thesis_col not in df.columns or ours_col not in df.columns:
@@ -87,7 +87,7 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
     simulated = set(df.loc[df["quantity"] == "f_a", "dataset"])
     fa = {(r["dataset"], r["muscle"]): r["_t"] for r in df[df["quantity"] == "f_a"].to_dict("records")}
     fc = {(r["dataset"], r["muscle"]): (r["_t"], r["_o"]) for r in df[df["quantity"] == "f_c"].to_dict("records")}
-    seed = int(ctx.config.get("seed", 0) or 0)
+    seed = int(ctx.settings.seed)
     rank_text: dict = {}
 
     def participant_rank(ds):  # Spearman of f_c / f_base across the data set's groups, permutation p-value

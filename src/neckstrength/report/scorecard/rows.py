@@ -13,6 +13,7 @@ from typing import Mapping, Sequence
 import pandas as pd
 
 from neckstrength.report.scorecard.chance import CONCLUSION_TESTS
+from neckstrength.report.scorecard.settings import ScorecardSettings
 from neckstrength.report.scorecard.tolerances import INDEPENDENT, MATCHES, NOT_EVALUATED, REASONS, Tolerance, _num
 
 
@@ -59,7 +60,7 @@ def _read(path) -> pd.DataFrame:
 
 @dataclass
 class Context:
-    config: Mapping
+    settings: ScorecardSettings
     tols: Mapping[str, Tolerance]
     match: re.Match
     path: Path
