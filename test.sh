@@ -4,4 +4,10 @@
 set -euo pipefail
 cd "$(dirname "$0")"
 bash setup.sh test,slurm
+# Headless Chromium for tests/browser (the report as a browser shows it): Debian's package, driven by Playwright
+# (no Playwright browser download)
+if [ -z "${CHROMIUM:-}" ] && ! command -v chromium >/dev/null && ! command -v chromium-browser >/dev/null; then
+  { apt-get update -qq && apt-get install -y -qq --no-install-recommends chromium >/dev/null; } ||
+    { echo "test.sh: could not install Debian's chromium (needs root and apt); install it, or set CHROMIUM to a Chromium executable" >&2; exit 1; }
+fi
 .venv/bin/python -m pytest "$@"
