@@ -133,3 +133,15 @@ def test_advice_says_when_every_size_is_unproducible():
                         "power": np.nan} for p in PROTOCOLS for u in (0.5, 1.0)])
     line = advice(pw, None, ProtocolSettings(target=0.8), 0.08, ["a"])[0]["line"]
     assert "unproducible" in line and "from noise" not in line
+
+
+def test_advice_cautions_where_the_heuristic_overstates_the_present_tests():
+    pw = pd.DataFrame([{"effect": "a", "protocol": p, "size_share": 1.0, "theta": "x=1", "power": v}
+                       for p, v in (("directions", 0.6), ("repeats", 0.95), ("emg", 0.6), ("postures", 0.7),
+                                    ("all", 1.0))])
+    sim = pd.DataFrame({"effect": ["a"], "size_share": [1.0], "power": [0.0]})
+    summ = pd.DataFrame({"effect": ["a"], "min_detectable_share": [np.nan]})
+    line = advice(pw, summ, ProtocolSettings(target=0.8), 0.08, ["a"], simulated_table=sim)[0]["line"]
+    assert line.startswith("to tell `a` from noise, add 3 trials") and "overstates" in line
+    ok = advice(pw, summ, ProtocolSettings(target=0.8), 0.08, ["a"], simulated_table=sim.assign(power=0.5))[0]
+    assert "overstates" not in ok["line"]

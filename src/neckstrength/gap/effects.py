@@ -758,11 +758,10 @@ class SubmaximalEffort(Effect):
                      for n in names)
 
     def grid(self, n: int) -> list[np.ndarray]:
-        """Neutral, the points along each coefficient axis (``n`` values per axis from lower to upper bound,
-        neutral left out: dipoles along the skull axes, two sizes), and the corners of the box (dipoles along the
-        diagonals, at the capped norm): 1 + 12 + 8 = 21 points for three parameters, 1 + 8 + 4 = 13 for two, where
-        the full product would have 125 / 25. Any other dipole direction is within 37 deg of one of these 14
-        (then reached by the refinement)."""
+        """Neutral and the points along each coefficient axis (``n`` values per axis from lower to upper bound,
+        neutral left out): dipoles along the skull axes, 1 + 12 = 13 points for three parameters (the full product
+        would have 125); oblique dipoles are left to the refinement. (The corners of the box as well, 21 points,
+        cost 8 more fits per problem and did not change the simulated power on S003: docs/gap_diagnosis.md.)"""
         ps = self.params()
         pts = [self.neutral]
         for a, p in enumerate(ps):
@@ -771,8 +770,6 @@ class SubmaximalEffort(Effect):
                     t = self.neutral.copy()
                     t[a] = v
                     pts.append(t)
-        for signs in itertools.product((-1.0, 1.0), repeat=len(ps)):
-            pts.append(np.array(signs) * self.upper)
         span = np.maximum(self.upper - self.lower, 1e-12)
         pts[1:] = sorted(pts[1:], key=lambda t: (float(np.linalg.norm((t - self.neutral) / span)), tuple(t)))
         return pts

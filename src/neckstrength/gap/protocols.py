@@ -283,11 +283,13 @@ def protocol_text(protocol: str, s: ProtocolSettings) -> str:
 
 
 def advice(power: pd.DataFrame, simulated: pd.DataFrame | None, s: ProtocolSettings, sigma: float,
-           effects: Sequence[str], oracle: bool = False) -> list[dict]:
+           effects: Sequence[str], oracle: bool = False, simulated_table: pd.DataFrame | None = None) -> list[dict]:
     """One line per effect (module docstring, "Advice"): ``{'effect', 'protocol', 'size_share', 'power',
     'basis', 'line'}``. ``power``: :func:`protocol_power`; ``simulated``: the calibration's power summary
     (:func:`neckstrength.gap.calibrate.power_summary`, its ``min_detectable_share``) or None; ``oracle``: the
-    power is the likelihood-ratio test's (no efficiency fitted), and the lines say so."""
+    power is the likelihood-ratio test's (no efficiency fitted), and the lines say so; ``simulated_table``: the
+    calibration's power table (effect, size_share, power): where the present tests' linearised power exceeds their
+    simulated power by more than 0.25 at some size, the line says that the heuristic overstates this effect."""
     tag = "oracle linearised power, no efficiency fitted" if oracle else "linearised power"
     if s.target is None:
         s = replace(s, target=0.8)
@@ -320,9 +322,26 @@ def advice(power: pd.DataFrame, simulated: pd.DataFrame | None, s: ProtocolSetti
             out.append({"effect": name, "protocol": r["protocol"], "size_share": float(r["size_share"]),
                         "power": float(r["power"]), "basis": "linearised",
                         "line": f"to tell `{name}` from noise, {what} (from {r['size_share']:g} of its range, "
-                        f"{r['theta']}; {tag} {r['power']:.2f}, heuristic)"})
+                        f"{r['theta']}; {tag} {r['power']:.2f}, heuristic)" + _overstates(power, simulated_table,
+                                                                                           name)})
         else:
             out.append({"effect": name, "protocol": "-", "size_share": np.nan, "power": np.nan, "basis": "-",
                         "line": f"no listed protocol tells `{name}` from noise at this noise (log SD {sigma:.3f}; "
                         f"{tag} < {s.target:g} at every size up to its bound)"})
     return out
+
+
+def _overstates(power: pd.DataFrame, simulated_table: pd.DataFrame | None, name: str) -> str:
+    """A caveat when the present tests' linearised power of effect ``name`` exceeds their simulated power by more
+    than 0.25 at some size (the efficiency is one factor for all effects; a flexible effect can need more)."""
+    if simulated_table is None or not len(simulated_table):
+        return ""
+    lin = power[(power["effect"] == name) & (power["protocol"] == "directions")].set_index("size_share")["power"]
+    sim = simulated_table[simulated_table["effect"] == name].set_index("size_share")["power"]
+    both = [(u, float(lin[u]), float(sim[u])) for u in lin.index if u in sim.index and np.isfinite(lin[u])
+            and np.isfinite(sim[u])]
+    worst = max(both, key=lambda t: t[1] - t[2], default=None)
+    if worst is None or worst[1] - worst[2] <= 0.25:
+        return ""
+    return (f"; caution: for the present tests the heuristic gives {worst[1]:.2f} at {worst[0]:g} of the range where "
+            f"the simulation gives {worst[2]:.2f}, so it overstates this effect's power")
