@@ -169,7 +169,8 @@ def test_same_answer_alone_in_a_batch_and_in_any_order(ctx_p2):
         dg.diagnose(ctx_p2, [data[0], data[0]], s)
 
 
-@pytest.mark.parametrize("effect", [None, "cocontraction", "direction_tolerance", "kinematic", "shoulder_girdle"])
+@pytest.mark.parametrize("effect", [None, "cocontraction", "direction_tolerance", "kinematic", "shoulder_girdle",
+                                    "submaximal_effort", "posture_drift", "anthropometric_scaling"])
 def test_exact_gradient_matches_finite_differences(effect, ctx_s3):
     # envelope theorem on the LP (fit.Simulator.forces_grad_phi) vs forward differences of the exact solver
     ctx = ctx_s3
