@@ -24,6 +24,7 @@ include: "workflow/rules/calibration.smk"
 include: "workflow/rules/postures.smk"
 include: "workflow/rules/clinician.smk"
 include: "workflow/rules/identifiability.smk"
+include: "workflow/rules/reruns.smk"
 # keep report.smk the last include: its inputs enumerate the outputs of every chapter above
 include: "workflow/rules/report.smk"
 

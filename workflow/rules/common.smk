@@ -288,6 +288,36 @@ def identifiability_outputs():
     return out
 
 
+def reruns_models(chapter):
+    # models of the run-to-run distributions: Chapter 5's from reruns.chapter5.models; Table 6.1 is p2m7's
+    if chapter == "chapter5":
+        return [m for m in config["reruns"]["chapter5"]["models"] if m in config["chapter5"]["models"]]
+    return [m for m in ("p2m7",) if m in CH6_MODELS]
+
+
+def reruns_datasets(chapter, named):
+    return list(config["chapter5"]["datasets"]) if chapter == "chapter5" else chapter6_datasets_for(named)
+
+
+def reruns_member_tables(wildcards):
+    return [f"results/reruns/{wildcards.chapter}/{m}/{d}/members.csv" for m in reruns_models(wildcards.chapter)
+            for d in reruns_datasets(wildcards.chapter, m)]
+
+
+def reruns_outputs():
+    # outputs of workflow/rules/reruns.smk and the run-to-run scoring (its rule `reruns` builds them; in `all`
+    # with reruns.in_all)
+    out = [f"results/reruns/{c}/bands.csv" for c in ("chapter5", "chapter6") if reruns_models(c)]
+    if config["reruns"]["attribution"]["variants"]:
+        out += [f"results/reruns/chapter5/{m}/attribution_summary.csv"
+                for m in config["reruns"]["attribution"]["models"] if m in config["chapter5"]["models"]]
+    return out + [f"results/report/scorecard_distribution{s}.csv" for s in ("", "_summary", "_spread")]
+
+
+def reruns_band_tables(wildcards):
+    return [f"results/reruns/{c}/bands.csv" for c in ("chapter5", "chapter6") if reruns_models(c)]
+
+
 def final_outputs():
     out = [
         "results/model/full_model.csv",
@@ -313,6 +343,8 @@ def final_outputs():
         out += clinician_outputs_list()
     if config["identifiability"]["in_all"]:
         out += identifiability_outputs()
+    if config["reruns"]["in_all"]:
+        out += reruns_outputs()
     out += report_outputs()
     return out
 

@@ -96,3 +96,43 @@ rule report_runtime:
         "../envs/neckstrength.yaml"
     script:
         "../scripts/report_runtime.py"
+
+
+rule report_distribution:
+    # run-to-run scoring (issue 36): each printed Chapter 5 / 6 value against our central band (reruns.smk)
+    input:
+        bands=reruns_band_tables,
+        scorecard="results/report/scorecard.csv",
+    output:
+        table=report(
+            "results/report/scorecard_distribution.csv",
+            caption="../report/scorecard_distribution.rst",
+            category="Scorecard",
+            subcategory="run-to-run",
+            labels={"table": "every Chapter 5 / 6 item against our band"},
+        ),
+        summary=report(
+            "results/report/scorecard_distribution_summary.csv",
+            caption="../report/scorecard_distribution.rst",
+            category="Scorecard",
+            subcategory="run-to-run",
+            labels={"table": "share inside our band per table"},
+        ),
+        spread=report(
+            "results/report/scorecard_distribution_spread.csv",
+            caption="../report/scorecard_distribution.rst",
+            category="Scorecard",
+            subcategory="run-to-run",
+            labels={"table": "seed-to-seed spread per muscle group"},
+        ),
+    params:
+        settings=settings("reruns.level", "seed"),
+    log:
+        "logs/report/distribution.log",
+    threads: 1
+    resources:
+        mem_mb=1000,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/report_distribution.py"

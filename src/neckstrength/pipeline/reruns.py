@@ -149,39 +149,56 @@ def reruns_attribution(config: Mapping, model_name: str, out_runs, out_summary) 
     import json
 
     from neckstrength.config import ConfigError, build_directions, plain, validate_config
+    from neckstrength.errors import DataValidationError
     from neckstrength.report.scorecard.distribution import attribution_summary
     from neckstrength.reruns.attribution import apply_variant
 
-    variants = {"baseline": {}, **dict(config["reruns"]["attribution"]["variants"])}
+    variants = {"baseline": {}}
+    for v in plain(config["reruns"]["attribution"]["variants"]):
+        if v["name"] in variants:
+            raise ConfigError("reruns.attribution.variants", [f"variant name {v['name']!r} used twice"])
+        variants[v["name"]] = v["set"]
+    # the sections a variant may change and the model / data sets read (validated again, defaults filled, per variant)
+    base = {k: plain(config[k]) for k in ("chapter5", "data", "geometry", "model", "models", "seed")}
     thesis = thesis_with_text(config["data"]["thesis_dir"], model_name)
-    frames = []
+    frames, failed = [], {}
     for name, changes in variants.items():
         try:
-            cfg = validate_config(apply_variant(plain(config), name, plain(changes)),
+            cfg = validate_config(apply_variant(base, name, changes),
                                   source=f"reruns.attribution.variants.{name}")
         except KeyError as e:
             raise ConfigError(f"reruns.attribution.variants.{name}", [str(e).strip("'\"")]) from None
         t0 = time.time()
-        model = model_from_config(full_model_from_config(cfg), cfg, model_name)
-        d = build_directions(cfg)
         c = cfg["chapter5"]
         runs = []
-        for ds in c["datasets"]:
-            data = build_dataset(model, d, ds, c, cfg["data"]["thesis_dir"], cfg["data"]["measurements"],
-                                 cfg["data"]["activations"])
-            stream, _ = member_stream(cfg["seed"], "chapter5", model_name, ds, 0)
-            m = algorithm4_member(model, data, abc_settings(cfg, model_name), c["bootstrap_direction"],
-                                  np.random.default_rng(stream))
-            m.insert(0, "member", 0)
-            m.insert(0, "dataset", ds)
-            m.insert(0, "model", model_name)
-            runs.append(m)
+        try:
+            model = model_from_config(full_model_from_config(cfg), cfg, model_name)
+            d = build_directions(cfg)
+            for ds in c["datasets"]:
+                data = build_dataset(model, d, ds, c, cfg["data"]["thesis_dir"], cfg["data"]["measurements"],
+                                     cfg["data"]["activations"])
+                stream, _ = member_stream(cfg["seed"], "chapter5", model_name, ds, 0)
+                m = algorithm4_member(model, data, abc_settings(cfg, model_name), c["bootstrap_direction"],
+                                      np.random.default_rng(stream))
+                m.insert(0, "member", 0)
+                m.insert(0, "dataset", ds)
+                m.insert(0, "model", model_name)
+                runs.append(m)
+        except (DataValidationError, ValueError) as e:  # the changed input makes no model / data set: say why
+            if name == "baseline":
+                raise
+            failed[name] = f"not evaluated: {type(e).__name__}: {e}"
+            print(f"variant {name} {json.dumps(changes)}: {failed[name]}", flush=True)
+            continue
         b = band_table(pd.concat(runs, ignore_index=True), thesis, float(config["reruns"]["level"]))
         b.insert(0, "variant", name)
         frames.append(b)
         print(f"variant {name} {json.dumps(changes)}: {time.time() - t0:.1f} s", flush=True)
     bands = pd.concat(frames, ignore_index=True)
     items, summary = attribution_summary(bands, {k: json.dumps(v) for k, v in variants.items()})
+    summary = pd.concat([summary, pd.DataFrame([{"variant": k, "changes": json.dumps(variants[k]), "note": why}
+                                                for k, why in failed.items()])], ignore_index=True)
+    summary = summary.set_index("variant").loc[list(variants)].reset_index()   # config order
     hdr = [f"Chapter 5 ({CHAPTER_TABLES['chapter5'][model_name]}, {model_name}) rerun with one input changed at a time "
            "(reruns.attribution.variants); Algorithm 4 draws nothing at random, so one run per variant and data set "
            "is its whole distribution",

@@ -41,7 +41,7 @@ COLUMNS = ["chapter", "source", "item", "thesis", "members", "band_low", "band_h
 
 
 SUMMARY_COLUMNS = ["chapter", "source", "quantity", "items", "consistent", "share_consistent", "chance_rate",
-                   "not_print_reproducible"]
+                   "consistent_by_construction", "not_print_reproducible"]
 
 
 def _item(r: Mapping) -> str:
@@ -87,7 +87,9 @@ def band_chance_rate(bands: pd.DataFrame, seed: int, n_permutations: int = N_PER
 def score_distribution(bands: pd.DataFrame, scorecard: pd.DataFrame | None, seed: int,
                        n_permutations: int = N_PERMUTATIONS) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Per printed item its run-to-run verdict (beside the main scorecard's kind and verdict), and the summary per
-    table and quantity with the chance rate of the test on that table's items."""
+    table and quantity with the chance rate of the test on that table's items; ``consistent_by_construction``
+    counts the consistent items that the main scorecard marks "by construction" (a clip limit, the noise-free
+    ceiling, a censored count: shown, not evidence)."""
     b = bands.copy()
     b["group"] = b["group"].fillna("").astype(str)
     b["source"] = b["table"] + " (" + b["model"] + ")"
@@ -113,6 +115,8 @@ def score_distribution(bands: pd.DataFrame, scorecard: pd.DataFrame | None, seed
             rows.append({"chapter": ch, "source": src, "quantity": q, "items": n, "consistent": k,
                          "share_consistent": k / n if n else math.nan,
                          "chance_rate": chance if q == "all" else band_chance_rate(s, seed, n_permutations),
+                         "consistent_by_construction": int(((s["verdict"] == CONSISTENT)
+                                                            & (s["scorecard_kind"] == "by construction")).sum()),
                          "not_print_reproducible": int((~s["print_reproducible"].astype(bool)).sum())})
     out = b.assign(thesis=b["thesis_text"])[COLUMNS].reset_index(drop=True)
     return out, pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
@@ -155,7 +159,7 @@ def within_tolerance(quantity: str, thesis: float, ours: float, censored: bool =
 
 
 ATTRIBUTION_COLUMNS = ["variant", "changes", "items", "on_print", "within_tolerance", "moved_onto", "moved_off",
-                       "median_abs_rel_diff_f_c", "moved_onto_items"]
+                       "median_abs_rel_diff_f_c", "moved_onto_items", "note"]
 
 
 def attribution_summary(runs: pd.DataFrame, changes: Mapping[str, str], baseline: str = "baseline"
@@ -182,7 +186,8 @@ def attribution_summary(runs: pd.DataFrame, changes: Mapping[str, str], baseline
         rows.append({"variant": v, "changes": changes.get(v, ""), "items": len(sub),
                      "on_print": int(sub["on_print"].sum()),
                      "within_tolerance": int(sub["within_tolerance"].sum()), "moved_onto": len(onto),
-                     "moved_off": len(off), "median_abs_rel_diff_f_c": rel, "moved_onto_items": "; ".join(onto)})
+                     "moved_off": len(off), "median_abs_rel_diff_f_c": rel, "moved_onto_items": "; ".join(onto),
+                     "note": ""})
     cols = ["variant", "item", "model", "dataset", "quantity", "group", "thesis_text", "ours", "on_print",
             "within_tolerance"]
     return r[cols].reset_index(drop=True), pd.DataFrame(rows, columns=ATTRIBUTION_COLUMNS)
