@@ -192,3 +192,23 @@ def test_change_cost_keeps_the_posture(tmp_path):
     assert t["score"].max() > -50                                        # a neutral test scores its gain
     with pytest.raises(ValueError, match="thesis's scheme .* has no posture model"):
         Session.start(tmp_path / "t", _opts(tmp_path, criterion="thesis", **kw), progress=_quiet)
+
+
+def test_s3m24_posture_session_has_the_deficit_decision_over_every_test(tmp_path):
+    """The deficit decision runs in posture sessions too (issue 31: posture tests decided every patient of the
+    benchmark set); its P is labelled heuristic (the recalibration was measured in neutral), undo and resume
+    restore its evidence exactly."""
+    out = tmp_path / "s"
+    s = Session.start(out, _opts(tmp_path, model="s3m24", postures="flex20"), progress=_quiet)
+    assert s.decision is not None and s.decision.postures == ["neutral", "flex20"]
+    assert s.decision.directions == s.directions
+    s.tell("150")
+    s.tell("measure flex20:back 120")
+    before = s.decision.log_bf()
+    s.tell("measure flex20:forehead 80")
+    s.undo()
+    assert s.decision.log_bf() == before and len(s.decision.tested) == 2
+    text = "\n".join(s.decision_lines())
+    assert "tests in several postures, measured in neutral only" in text and "NOT calibrated" in text
+    r = Session.resume(out, progress=_quiet)
+    assert r.decision.log_bf() == s.decision.log_bf() and r.decision.tested == s.decision.tested

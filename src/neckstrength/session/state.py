@@ -208,7 +208,7 @@ class Session:
         self._proposals: dict[tuple, Proposal] = {}
         self.log = SessionLog(self.out / LOG)
         self._seq = 0
-        self.decision = None                   # the deficit decision (joint posterior sessions in neutral posture)
+        self.decision = None                   # the deficit decision (joint posterior sessions; in several postures too)
         if self.joint:                         # the joint posterior: candidates drawn and solved at start (N x K)
             self.sim = None
             what = (f"tests ({len(postures)} postures x {len(self.base_directions)} directions, change cost "
@@ -262,11 +262,13 @@ class Session:
             ds = replace(cs.decision, **over)
         except ValueError as exc:
             raise ValueError(f"session decision settings: {exc}") from None
-        if self.postures or not len(ds.group_indices(self.muscles)):
+        if not len(ds.group_indices(self.muscles)):
             return None
         t0 = time.time()
+        post = {"pset": self.pset, "test_postures": self.test_postures} if self.postures else {}
         dec = DeficitDecision(self.model, self.directions, self.U, self.force_scale, self.f0, ds, self.settings,
-                              derive_rng(self.seed, f"session/{self.opts.model}/decision"), n_threads=self.threads)
+                              derive_rng(self.seed, f"session/{self.opts.model}/decision"), n_threads=self.threads,
+                              **post)
         self.progress(f"deficit decision: {ds.n_candidates} candidates per hypothesis, ready in "
                       f"{time.time() - t0:.1f} s")
         return dec
