@@ -30,13 +30,13 @@ def test_fast_steps_print_what_the_walkthrough_shows(wt, recorded):
     now = wt.run_steps(wt.FAST)
     for name in wt.FAST:
         assert now[name] == recorded[name], (f"docs/walkthrough.md is stale at step '{name}' "
-                                             f"(run python docs/walkthrough.py):\n{now[name]}")
+                                             f"(run python docs/walkthrough.py --write):\n{now[name]}")
 
 
 def test_readme_excerpt_is_derived_from_the_walkthrough(wt, recorded):
     readme = (ROOT / "README.md").read_text()
     assert wt.with_readme_block(readme, wt.readme_block(recorded)) == readme, \
-        "README's walk-through block differs from docs/walkthrough.md (run python docs/walkthrough.py)"
+        "README's walk-through block differs from docs/walkthrough.md (run python docs/walkthrough.py --write)"
     assert "P01" in wt.readme_block(recorded) and "sigma_c" in recorded["estimate"]
 
 
