@@ -32,6 +32,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--dataset", default="S003")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--order", default="previous,current", help="which path first")
+    ap.add_argument("--replicates", type=int, default=None, help="noise-only replicates (default: the config's)")
+    ap.add_argument("--no-sensitivity", action="store_true", help="without the sensitivity table's nulls")
     ap.add_argument("--out", default=None, help="JSON file for the timings (not overwritten)")
     a = ap.parse_args(argv)
     if a.out and os.path.exists(a.out):
@@ -53,6 +55,11 @@ def main(argv=None) -> dict:
     ctx = gap_context(cfg, model, directions)
     data = gap_blind_dataset(cfg, ctx, directions, a.dataset)
     s = diagnosis_settings(cfg)
+    from dataclasses import replace
+
+    cal = s.calibration
+    s = replace(s, calibration=replace(cal, replicates=a.replicates or cal.replicates,
+                                       sensitivity=cal.sensitivity and not a.no_sensitivity))
     effects = available_effects(ctx, s.effects)
     folds = direction_folds(ctx.K, s.folds, derive_rng(s.seed, f"gap/folds/{data.name}"))[None, :]
     eng = _Engine(ctx, [data], s, folds, {e.name: e for e in effects})
@@ -64,7 +71,7 @@ def main(argv=None) -> dict:
     paths = {"previous": calibrate, "current": calibrate_with_power}
     out: dict = {"model": model, "dataset": a.dataset, "workers": a.workers, "effects": [e.name for e in effects],
                  "replicates": s.calibration.replicates, "power_replicates": s.calibration.power_replicates,
-                 "noise": s.calibration.noise}
+                 "noise": s.calibration.noise, "sensitivity": s.calibration.sensitivity}
     cals = {}
     for tag in a.order.split(","):
         t0, c0, l0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]

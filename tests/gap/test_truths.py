@@ -126,13 +126,17 @@ def test_wilson_interval_reference_values():
 def test_scoring_counts_detectable_cases_against_the_controls_threshold():
     rows = [{"case": f"c{i}", "truth": "none", "target": "none", "target_candidate": True,
              "named": "asymmetry" if i == 0 else "none", "gap_heldout_base": 0.01 * (i + 1),
-             "gap_over_noise": 1.0, "consistent_with_noise": True} for i in range(20)]
+             "gap_over_noise": 1.0, "consistent_with_noise": True, "rms_rel_heldout_base": 0.05,
+             "noise_sigma": 0.05} for i in range(20)]
     rows += [{"case": "e1", "truth": "asymmetry", "target": "asymmetry", "target_candidate": True,
-              "named": "asymmetry", "gap_heldout_base": 0.5, "gap_over_noise": 5.0, "consistent_with_noise": False},
+              "named": "asymmetry", "gap_heldout_base": 0.5, "gap_over_noise": 5.0, "consistent_with_noise": False,
+              "rms_rel_heldout_base": 0.4, "noise_sigma": 0.05},
              {"case": "e2", "truth": "asymmetry", "target": "asymmetry", "target_candidate": True,
-              "named": "none", "gap_heldout_base": 0.01, "gap_over_noise": 1.0, "consistent_with_noise": True},
+              "named": "none", "gap_heldout_base": 0.01, "gap_over_noise": 1.0, "consistent_with_noise": True,
+              "rms_rel_heldout_base": 0.06, "noise_sigma": 0.05},
              {"case": "e3", "truth": "posture_drift", "target": "posture_drift", "target_candidate": False,
-              "named": "none", "gap_heldout_base": 0.4, "gap_over_noise": 4.0, "consistent_with_noise": True}]
+              "named": "none", "gap_heldout_base": 0.4, "gap_over_noise": 4.0, "consistent_with_noise": True,
+              "rms_rel_heldout_base": 0.2, "noise_sigma": 0.05}]
     pc, tab, thr = score_cases(rows)
     assert thr == pytest.approx(np.quantile(0.01 * np.arange(1, 21), 0.95))
     assert list(pc.loc[pc["truth"] != "none", "detectable"]) == [True, False, True]
@@ -144,6 +148,8 @@ def test_scoring_counts_detectable_cases_against_the_controls_threshold():
     assert (fa["cases"], fa["count"]) == (20, 1) and fa["goal_shown"] == "point estimate only"
     cwn = t.iloc[5]
     assert cwn["count"] == 1                                          # e3: consistent with noise at 4x the noise
+    refit = t.iloc[6]                 # refitted residual known where nothing was named: 19 controls, e2, e3
+    assert (refit["cases"], refit["count"]) == (21, 1)
 
 
 def test_reduced_benchmark_runs_end_to_end(tmp_path):
