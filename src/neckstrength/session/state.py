@@ -507,10 +507,18 @@ class Session:
                        f"{first:.3f} ({crit})")
 
     def estimate(self) -> pd.DataFrame:
-        e = self.state.estimate()
-        e.insert(1, "f_0", self.f0)
-        e.insert(2, "sd_0", self.settings.prior_sd_rel * self.f0)
-        return e
+        """The current estimate per muscle (a copy). Computed once per set of measurements: a screen, the snapshot
+        and the predicted forces of one step share it (the key is the measurements' content, so an undo and a
+        re-measurement with another force recompute it)."""
+        key = tuple((r["direction"], r["force_N"], json.dumps(r.get("activations"), sort_keys=True))
+                    for r in self.entries if r["action"] == "measure")
+        memo = getattr(self, "_estimate_memo", None)
+        if memo is None or memo[0] != key:
+            e = self.state.estimate()
+            e.insert(1, "f_0", self.f0)
+            e.insert(2, "sd_0", self.settings.prior_sd_rel * self.f0)
+            self._estimate_memo = memo = (key, e)
+        return memo[1].copy()
 
     def uncertainty_label(self) -> str:
         """What the estimate's ± is and is not (shown with it on the screen and in :meth:`snapshot`)."""
