@@ -10,8 +10,7 @@ import resource
 import time
 
 from neckstrength.abc.algorithm4 import ABCSettings, estimate_strengths
-from neckstrength.config import build_directions, full_model_from_config, load_config, model_from_config
-from neckstrength.estimation.datasets import build_dataset
+from neckstrength.config import build_directions, dataset_from_config, full_model_from_config, load_config, model_from_config
 from neckstrength.estimation.scaling import bootstrap_prior
 
 
@@ -27,8 +26,7 @@ def main():
     model = model_from_config(full, cfg, "s3m24")
     d = build_directions(cfg)
     c = cfg["chapter5"]
-    data = build_dataset(model, d, a.dataset, c, cfg["data"]["thesis_dir"], cfg["data"]["measurements"],
-                         cfg["data"]["activations"])
+    data = dataset_from_config(cfg, "chapter5", model, d, a.dataset)
     f0, scale = bootstrap_prior(model, data, "back")
     times = []
     t_last = [time.time()]

@@ -17,8 +17,8 @@ import numpy as np
 
 from neckstrength.abc.smc import SMCSettings
 from neckstrength.calibration.crosscheck import compare, comparison_table
-from neckstrength.config import build_directions, full_model_from_config, load_config, model_from_config, seed_sequence
-from neckstrength.estimation.datasets import build_dataset
+from neckstrength.config import (build_directions, dataset_from_config, full_model_from_config, load_config,
+                                 model_from_config, seed_sequence)
 from neckstrength.estimation.scaling import bootstrap_prior
 
 
@@ -41,8 +41,7 @@ def main():
     for case, n_part, budget in zip(a.cases, a.particles, a.budget):
         model_name, dataset = case.split("/")
         model = model_from_config(full, cfg, model_name)
-        data = build_dataset(model, d, dataset, c, cfg["data"]["thesis_dir"], cfg["data"]["measurements"],
-                             cfg["data"]["activations"])
+        data = dataset_from_config(cfg, "chapter5", model, d, dataset)
         f0, _ = bootstrap_prior(model, data, c["bootstrap_direction"])
         settings = SMCSettings(n_particles=n_part, budget=budget, prior_sigma=c["smc"]["prior_sigma"],
                                quantile=c["smc"]["quantile"], epsilon=c["epsilon"])

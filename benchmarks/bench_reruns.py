@@ -13,9 +13,8 @@ import time
 
 import numpy as np
 
-from neckstrength.config import (abc_settings, build_directions, chapter6_settings, full_model_from_config,
-                                 load_config, model_from_config)
-from neckstrength.estimation.datasets import build_dataset
+from neckstrength.config import (abc_settings, build_directions, chapter6_settings, dataset_from_config,
+                                 full_model_from_config, load_config, model_from_config)
 from neckstrength.pipeline.chapter6 import chapter6_dataset
 from neckstrength.reruns.runs import algorithm4_member, member_stream, sequential_member
 
@@ -34,8 +33,7 @@ def main():
 
     def alg4(model_name, ds):
         model = model_from_config(full, cfg, model_name)
-        data = build_dataset(model, d, ds, c, cfg["data"]["thesis_dir"], cfg["data"]["measurements"],
-                             cfg["data"]["activations"])
+        data = dataset_from_config(cfg, "chapter5", model, d, ds)
         stream, _ = member_stream(cfg["seed"], "chapter5", model_name, ds, 0)
         t0, c0 = time.time(), time.process_time()
         m = algorithm4_member(model, data, abc_settings(cfg, model_name), c["bootstrap_direction"],

@@ -24,6 +24,8 @@ import yaml
 from neckstrength.abc.algorithm4 import ABCSettings
 from neckstrength.abc.smc import SMCSettings
 from neckstrength.estimation.datasets import (
+    SIMULATED_DATASETS,
+    Dataset,
     DatasetSettings,
     load_dataset,
     model_directions_table,
@@ -346,13 +348,29 @@ def smc_settings(config: Mapping) -> SMCSettings:
                        quantile=sc["quantile"], epsilon=c["epsilon"])
 
 
-def dataset_settings(config: Mapping, section: str, model_name: str) -> DatasetSettings:
-    """How ``section`` (``chapter5`` or ``chapter6``) builds a data set of ``model_name`` (:func:`load_dataset`)."""
+def dataset_settings(config: Mapping, section: str, model_name: str, dataset: str | None = None) -> DatasetSettings:
+    """How ``section`` (``chapter5`` or ``chapter6``) builds a data set of ``model_name`` (:func:`load_dataset`).
+
+    With ``dataset`` given, only the keys that kind of data set uses are read (a simulated 'norm'/'weak':
+    ``simulated_emg*``; a participant: ``participant_emg*``), so a rule declares only those; the others keep the
+    dataclass's defaults."""
     c = config[section]
-    return DatasetSettings(emg_groups=tuple(c["emg_groups"].get(model_name, [])),
-                           simulated_emg=bool(c["simulated_emg"]), simulated_emg_band=float(c["simulated_emg_band"]),
-                           participant_emg=str(c["participant_emg"]),
-                           participant_emg_band=float(c["participant_emg_band"]))
+    kw: dict = {"emg_groups": tuple(c["emg_groups"].get(model_name, []))}
+    simulated = dataset in SIMULATED_DATASETS
+    if dataset is None or simulated:
+        kw.update(simulated_emg=bool(c["simulated_emg"]), simulated_emg_band=float(c["simulated_emg_band"]))
+    if dataset is None or not simulated:
+        kw.update(participant_emg=str(c["participant_emg"]), participant_emg_band=float(c["participant_emg_band"]))
+    return DatasetSettings(**kw)
+
+
+def dataset_from_config(config: Mapping, section: str, model: ReducedModel, directions: pd.DataFrame,
+                        dataset: str) -> Dataset:
+    """Data set ``dataset`` of ``model`` as ``section`` (``chapter5`` / ``chapter6``) builds it: 'norm' / 'weak'
+    simulated from the thesis's f_a (Sec. 5.3), else a participant column of ``data.measurements``."""
+    d = config["data"]
+    return load_dataset(model, directions, dataset, dataset_settings(config, section, model.name, dataset),
+                        d["thesis_dir"], d["measurements"], d["activations"])
 
 
 def estimate_settings(config: Mapping, model_name: str):

@@ -13,14 +13,13 @@ from neckstrength.abc.algorithm4 import (
     update_estimate,
 )
 from neckstrength.config import build_directions, full_model_from_config, load_config, model_from_config
-from neckstrength.estimation.datasets import build_dataset, thesis_f_actual
+from neckstrength.estimation.datasets import DatasetSettings, load_dataset, thesis_f_actual
 from neckstrength.estimation.discrepancy import composite_score, data_discrepancy
 from neckstrength.estimation.parameters import free_parameters
 from neckstrength.estimation.scaling import bootstrap_prior
 
 ROOT = Path(__file__).resolve().parents[2]
 THESIS = ROOT / "data" / "thesis"
-CH5 = {"emg_groups": {"p2m7": ["TS-B"], "s3m24": ["SCM", "trap", "semicap", "spcap", "levscap"]}}
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +71,8 @@ def test_tied_sides(env):
 def test_p2m7_simulated_norm_converges_and_fits(env, tmp_path):
     cfg, full, d = env
     m = model_from_config(full, cfg, "p2m7")
-    data = build_dataset(m, d, "norm", CH5, THESIS, cfg["data"]["measurements"], cfg["data"]["activations"])
+    data = load_dataset(m, d, "norm", DatasetSettings(), THESIS, cfg["data"]["measurements"],
+                        cfg["data"]["activations"])
     assert np.allclose(data.f_true, thesis_f_actual(m, THESIS, "norm"))
     f0, a = bootstrap_prior(m, data, "back")
     ck = tmp_path / "ck.npz"
@@ -90,7 +90,8 @@ def test_p2m7_simulated_norm_converges_and_fits(env, tmp_path):
 def test_weak_deep_extensors_identified_p2m7(env):
     cfg, full, d = env
     m = model_from_config(full, cfg, "p2m7")
-    data = build_dataset(m, d, "weak", CH5, THESIS, cfg["data"]["measurements"], cfg["data"]["activations"])
+    data = load_dataset(m, d, "weak", DatasetSettings(), THESIS, cfg["data"]["measurements"],
+                        cfg["data"]["activations"])
     f0, a = bootstrap_prior(m, data, "back")
     r = estimate_strengths(m, data, ABCSettings(sigma0=0.3, max_iter=30), f0, a, progress=None)
     k = r.param_names.index("TC-E")
@@ -102,8 +103,8 @@ def test_abc_smc_improves_fit_and_respects_budget(env):
 
     cfg, full, d = env
     m = model_from_config(full, cfg, "p2m7")
-    data = build_dataset(m, d, "norm", {"simulated_emg": False}, THESIS, cfg["data"]["measurements"],
-                         cfg["data"]["activations"])
+    data = load_dataset(m, d, "norm", DatasetSettings(simulated_emg=False), THESIS, cfg["data"]["measurements"],
+                        cfg["data"]["activations"])
     f0, _ = bootstrap_prior(m, data, "back")
     r = abc_smc(m, data, f0, SMCSettings(n_particles=300, budget=6000), np.random.default_rng(3))
     assert r.n_simulations <= 6000
@@ -135,7 +136,8 @@ def test_resumed_run_is_identical_to_an_uninterrupted_one(env, tmp_path):
     candidates and history as a run that was never interrupted."""
     cfg, full, d = env
     m = model_from_config(full, cfg, "p2m7")
-    data = build_dataset(m, d, "norm", CH5, THESIS, cfg["data"]["measurements"], cfg["data"]["activations"])
+    data = load_dataset(m, d, "norm", DatasetSettings(), THESIS, cfg["data"]["measurements"],
+                        cfg["data"]["activations"])
     f0, a = bootstrap_prior(m, data, "back")
     s = ABCSettings(sigma0=0.3, max_iter=3, eps_D=0.999, store_candidates=500)
     u = estimate_strengths(m, data, s, f0, a, rng=np.random.default_rng(11), progress=None)

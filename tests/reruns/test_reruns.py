@@ -14,9 +14,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from neckstrength.config import (abc_settings, build_directions, chapter6_settings, full_model_from_config,
-                                 load_config, model_from_config, rerun_settings)
-from neckstrength.estimation.datasets import build_dataset
+from neckstrength.config import (abc_settings, build_directions, chapter6_settings, dataset_from_config,
+                                 full_model_from_config, load_config, model_from_config, rerun_settings)
 from neckstrength.pipeline.chapter6 import chapter6_dataset
 from neckstrength.report.scorecard.distribution import (CONSISTENT, OUTSIDE, band_chance_rate, group_spread,
                                                          score_distribution)
@@ -121,8 +120,7 @@ def test_algorithm4_members_coincide(ci):
     """Algorithm 4 draws nothing at random (Sec. 5.2.2.2): two streams give bit-identical estimates."""
     cfg, model, d = ci
     c = cfg["chapter5"]
-    data = build_dataset(model, d, "weak", c, cfg["data"]["thesis_dir"], cfg["data"]["measurements"],
-                         cfg["data"]["activations"])
+    data = dataset_from_config(cfg, "chapter5", model, d, "weak")
     out = [algorithm4_member(model, data, abc_settings(cfg, "p2m7"), c["bootstrap_direction"],
                              np.random.default_rng(member_stream(cfg["seed"], "chapter5", "p2m7", "weak", k)[0]))
            for k in (0, 1)]

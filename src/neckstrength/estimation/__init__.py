@@ -9,8 +9,8 @@
 
 from neckstrength.estimation.datasets import (
                                               Dataset,
+                                              SIMULATED_DATASETS,
                                               DatasetSettings,
-                                              build_dataset,
                                               load_dataset,
                                               model_directions_table,
                                               participant_dataset,
@@ -22,7 +22,7 @@ from neckstrength.estimation.discrepancy import composite_score, data_discrepanc
 from neckstrength.estimation.parameters import free_parameters
 from neckstrength.estimation.scaling import bootstrap_prior, bootstrap_scale
 
-__all__ = ["Dataset", "DatasetSettings", "build_dataset", "load_dataset", "model_directions_table",
+__all__ = ["Dataset", "DatasetSettings", "SIMULATED_DATASETS", "load_dataset", "model_directions_table",
            "participant_dataset", "simulated_dataset",
            "thesis_f_actual", "thesis_result_table", "composite_score", "data_discrepancy", "free_parameters",
            "bootstrap_prior", "bootstrap_scale"]

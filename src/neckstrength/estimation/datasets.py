@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Sequence
 
 import numpy as np
 import pandas as pd
@@ -145,27 +145,17 @@ class DatasetSettings:
     participant_emg_band: float = 0.2
 
 
+#: the data sets simulated from the thesis's f_a (Sec. 5.3) rather than read from a measurement table
+SIMULATED_DATASETS = ("norm", "weak")
+
+
 def load_dataset(model: ReducedModel, directions: pd.DataFrame, dataset: str, settings: DatasetSettings,
                  thesis_dir: str | Path, measurements: str | Path, activations: str | Path | None) -> Dataset:
     """Data set ``dataset`` ('norm', 'weak': simulated from the thesis's f_a; else a participant column of
     ``measurements``) for ``model``."""
     s = settings
-    if dataset in ("norm", "weak"):
+    if dataset in SIMULATED_DATASETS:
         return simulated_dataset(model, directions, dataset, thesis_f_actual(model, thesis_dir, dataset),
                                  s.emg_groups if s.simulated_emg else (), s.simulated_emg_band)
     return participant_dataset(model, directions, dataset, measurements, activations, s.participant_emg,
                                s.emg_groups, s.participant_emg_band)
-
-
-def build_dataset(model: ReducedModel, directions: pd.DataFrame, dataset: str, cfg: Mapping,
-                  thesis_dir: str | Path, measurements: str | Path, activations: str | Path) -> Dataset:
-    """:func:`load_dataset` with its settings read from a config section (``chapter5``; to go: callers pass
-    :class:`DatasetSettings` built by ``neckstrength.config.dataset_settings``)."""
-    groups = tuple(cfg.get("emg_groups", {}).get(model.name, []))
-    if dataset in ("norm", "weak"):     # reads only the keys this kind of data set uses (a rule declares those)
-        s = DatasetSettings(groups, simulated_emg=bool(cfg.get("simulated_emg", False)),
-                            simulated_emg_band=cfg.get("simulated_emg_band", 0.05))
-    else:
-        s = DatasetSettings(groups, participant_emg=cfg.get("participant_emg", "none"),
-                            participant_emg_band=cfg.get("participant_emg_band", 0.2))
-    return load_dataset(model, directions, dataset, s, thesis_dir, measurements, activations)

@@ -17,8 +17,15 @@ from neckstrength.abc.stage import (
     write_alg4,
     write_smc_comparison,
 )
-from neckstrength.config import abc_settings, derive_rng, full_model_from_config, model_from_config, smc_settings
-from neckstrength.estimation.datasets import build_dataset, thesis_result_table
+from neckstrength.config import (
+    abc_settings,
+    dataset_from_config,
+    derive_rng,
+    full_model_from_config,
+    model_from_config,
+    smc_settings,
+)
+from neckstrength.estimation.datasets import thesis_result_table
 from neckstrength.estimation.scaling import bootstrap_prior
 from neckstrength.io import atomic_write_csv
 from neckstrength.pipeline.common import load_directions
@@ -32,8 +39,7 @@ def chapter5_estimate(config: Mapping, model_name: str, dataset: str, directions
     model = model_from_config(full, config, model_name)
     c = config["chapter5"]
     d = load_directions(directions_csv)
-    data = build_dataset(model, d, dataset, c, config["data"]["thesis_dir"], config["data"]["measurements"],
-                         config["data"]["activations"])
+    data = dataset_from_config(config, "chapter5", model, d, dataset)
     ckpt = Path(outputs["estimate"]).parent / ".checkpoint.npz"
     run = run_alg4(model, data, abc_settings(config, model_name), c["bootstrap_direction"],
                    derive_rng(config["seed"], f"{model_name}/{dataset}"), config["seed"], checkpoint=ckpt,
@@ -94,8 +100,7 @@ def chapter5_smc(config: Mapping, model_name: str, dataset: str, directions_csv,
     full = full_model_from_config(config)
     model = model_from_config(full, config, model_name)
     d = load_directions(directions_csv)
-    data = build_dataset(model, d, dataset, c, config["data"]["thesis_dir"], config["data"]["measurements"],
-                         config["data"]["activations"])
+    data = dataset_from_config(config, "chapter5", model, d, dataset)
     meta = json.loads(Path(summary_json).read_text())
     cmp = run_smc_comparison(model, data, pd.read_csv(estimate_csv, comment="#"), int(meta["iterations"]),
                              abc_settings(config, model_name), smc_settings(config), c["bootstrap_direction"],

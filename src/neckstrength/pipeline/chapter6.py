@@ -14,6 +14,7 @@ import pandas as pd
 
 from neckstrength.config import (
     chapter6_settings,
+    dataset_from_config,
     full_model_from_config,
     joint_settings,
     model_from_config,
@@ -21,7 +22,6 @@ from neckstrength.config import (
 )
 from neckstrength.estimation.datasets import (
     Dataset,
-    build_dataset,
     simulated_dataset,
     thesis_f_actual,
     thesis_result_table,
@@ -73,8 +73,7 @@ def chapter6_dataset(model, directions: pd.DataFrame, dataset: str, config: Mapp
         fa = thesis_f_actual(model, thesis_dir, dataset, table=sim_tables[dataset])
         groups = c.get("emg_groups", {}).get(model.name, []) if c.get("simulated_emg", True) else []
         return simulated_dataset(model, directions, dataset, fa, groups, c.get("simulated_emg_band", 0.05))
-    return build_dataset(model, directions, dataset, c, thesis_dir, config["data"]["measurements"],
-                         config["data"]["activations"])
+    return dataset_from_config(config, "chapter6", model, directions, dataset)
 
 
 def _seeds(config: Mapping, key: str) -> tuple[np.random.SeedSequence, ...]:

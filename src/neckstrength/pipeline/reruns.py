@@ -16,11 +16,12 @@ import pandas as pd
 from neckstrength.config import (
     abc_settings,
     chapter6_settings,
+    dataset_from_config,
     full_model_from_config,
     model_from_config,
     rerun_settings,
 )
-from neckstrength.estimation.datasets import build_dataset, thesis_result_table
+from neckstrength.estimation.datasets import thesis_result_table
 from neckstrength.io import atomic_write_csv
 from neckstrength.pipeline.chapter6 import chapter6_dataset
 from neckstrength.pipeline.common import load_directions
@@ -40,8 +41,7 @@ def reruns_members(config: Mapping, chapter: str, model_name: str, dataset: str,
     d = load_directions(directions_csv)
     if chapter == "chapter5":
         c = config["chapter5"]
-        data = build_dataset(model, d, dataset, c, config["data"]["thesis_dir"], config["data"]["measurements"],
-                             config["data"]["activations"])
+        data = dataset_from_config(config, "chapter5", model, d, dataset)
         settings = abc_settings(config, model_name)
         what = f"Algorithm 4 (Chapter 5), settings {settings}; Eq. 5.3 scaling '{c['bootstrap_direction']}'"
     elif chapter == "chapter6":
@@ -175,8 +175,7 @@ def reruns_attribution(config: Mapping, model_name: str, out_runs, out_summary) 
             model = model_from_config(full_model_from_config(cfg), cfg, model_name)
             d = build_directions(cfg)
             for ds in c["datasets"]:
-                data = build_dataset(model, d, ds, c, cfg["data"]["thesis_dir"], cfg["data"]["measurements"],
-                                     cfg["data"]["activations"])
+                data = dataset_from_config(cfg, "chapter5", model, d, ds)
                 stream, _ = member_stream(cfg["seed"], "chapter5", model_name, ds, 0)
                 m = algorithm4_member(model, data, abc_settings(cfg, model_name), c["bootstrap_direction"],
                                       np.random.default_rng(stream))
