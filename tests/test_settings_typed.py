@@ -3,6 +3,7 @@ receives frozen dataclasses that ``config.py`` builds. The schema's defaults equ
 setting left out of a config means the same thing wherever it is read."""
 
 import ast
+import functools
 from dataclasses import MISSING, fields
 from pathlib import Path
 
@@ -71,6 +72,11 @@ def test_the_detector_finds_config_reads():
 
 
 # --- the schema's defaults are the dataclasses' defaults ----------------------------------------------------------
+
+@functools.lru_cache(maxsize=1)
+def _schema() -> dict:
+    return yaml.safe_load(SCHEMA.read_text())
+
 
 def _schema_node(schema: dict, dotted: str) -> dict:
     node = schema
@@ -213,9 +219,8 @@ ROW_IDS = ["chapter5:ABC", "chapter5.smc:SMC", "chapter5:Dataset", "chapter6:Dat
 
 @pytest.mark.parametrize("row", range(len(ROW_IDS)), ids=ROW_IDS)
 def test_schema_defaults_are_the_dataclass_defaults(row):
-    schema = yaml.safe_load(SCHEMA.read_text())
     section, cls, mapping, excluded = _rows()[row]
-    got = compared_defaults(schema, section, cls, mapping, excluded)
+    got = compared_defaults(_schema(), section, cls, mapping, excluded)
     assert got, f"{section}: no default of {cls.__name__} compared (wrong section?)"
     bad = [f"{section}.{mapping.get(n, n) if not isinstance(mapping.get(n), tuple) else mapping[n][0]} "
            f"(schema {s!r}) != {cls.__name__}.{n} = {d!r}" for n, d, s in got if d != s]
