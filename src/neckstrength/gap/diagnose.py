@@ -34,13 +34,13 @@ from __future__ import annotations
 
 import contextlib
 import json
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 import pandas as pd
 
-from neckstrength.gap.calibrate import NoiseLevel, calibrate, power_for, power_summary, remainder_verdict
+from neckstrength.gap.calibrate import NoiseLevel, calibrate, power_summary, remainder_verdict
 from neckstrength.gap.effects import Effect, GapContext, available_effects, effect_label
 from neckstrength.gap.engine import (  # noqa: F401  (BlindData, DiagnosisSettings, direction_folds: public here too)
     BlindData,
@@ -365,8 +365,8 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
             Tm = eng.T[pf]
             rms = np.column_stack([np.sqrt(np.mean(np.log(np.maximum(np.array(cv_pred[c]), 1e-12) / Tm) ** 2,
                                                    axis=1)) for c in single_cands])
-            cal = calibrate_with_power(ctx, names, folds, Tm, eng.results[()]["forces"][pf],
-                                       eng.results[()]["phi"][pf], rms, effects, s, say, workers, checkpoints)
+            cal = calibrate(ctx, names, folds, Tm, eng.results[()]["forces"][pf], eng.results[()]["phi"][pf], rms,
+                            effects, s, say, workers, checkpoints)
             say(f"calibration done ({s.calibration.replicates} noise-only replicates per data set)")
         if fut is not None:
             results, n_fits, parts, refined = fut.result()
@@ -385,28 +385,6 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
         sm = out[-1].summary
         say(f"{dat.name}: {sm['decision']}; held-out gap {sm['gap_before']:.3f} -> {sm['gap_after']:.3f} (1 - D_cv)")
     return out
-
-
-def calibrate_with_power(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarray, f_fit: np.ndarray,
-                         phi_fit: np.ndarray, rms_obs: np.ndarray, effects: list[Effect], s: DiagnosisSettings,
-                         say=None, workers: int = 1, checkpoints=None) -> list:
-    """:func:`neckstrength.gap.calibrate.calibrate` with the power tables computed in two stages: the null (and
-    sensitivity) data sets screened first, without the power's (the same null: its truths are the first rows of
-    the data set's truth stream and its noise has its own stream), then every effect's power data sets by
-    :func:`neckstrength.gap.calibrate.power_for`, which screens each with the base model and its own effect and
-    only those that pass that effect's necessary test with every effect (the same hits as screening all of them
-    with every effect; equal up to the solver's rounding, which depends on what is fitted together). About a
-    quarter less screening for a participant with s3m24 (``benchmarks/bench_gap_calibration.py``)."""
-    cs = s.calibration
-    if cs.power_replicates <= 0:
-        return calibrate(ctx, names, folds, T, f_fit, phi_fit, rms_obs, effects, s, say, workers, checkpoints)
-    s0 = replace(s, calibration=replace(cs, power_replicates=0))
-    cals = calibrate(ctx, names, folds, T, f_fit, phi_fit, rms_obs, effects, s0, say, workers, checkpoints)
-    data = [BlindData(n, np.asarray(t, float)) for n, t in zip(names, T)]
-    tabs = power_for(ctx, data, cals, [[e.name for e in effects]] * len(cals), s, say, workers, checkpoints)
-    for c, t in zip(cals, tabs):
-        c.power = t
-    return cals
 
 
 def _scores_for(eng: _Engine, keys_per_problem: list[list[tuple]]) -> tuple[list[tuple], list[np.ndarray]]:
