@@ -163,6 +163,7 @@ def run_estimate(settings: EstimateSettings, model: ReducedModel, directions: pd
         run = run_alg4(model, data, s.abc, s.bootstrap_direction, derive_rng(s.seed, f"{model_name}/{participant}"),
                        s.seed, checkpoint=out / ".checkpoint.npz", n_threads=threads)
         write_alg4(run, outputs)
+        (out / ".checkpoint.npz").unlink(missing_ok=True)      # only an interrupted run needs it (to resume)
         if figures:
             figs = {"traces": out / "fig_estimate_traces.png", "dk_hist": out / "fig_dk_hist.png",
                     "d_dir": out / "fig_d_by_direction.png", "parallel": out / "fig_parallel.png",

@@ -26,6 +26,7 @@ def test_estimate_from_trials(tmp_path, capsys):
     assert (out / "import" / "quality_report.md").exists() and not (out / "fig_fit_radar.png").exists()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["seed"] == 7
+    assert not (out / ".checkpoint.npz").exists()        # a finished run leaves no checkpoint (only resumes need it)
 
 
 def test_directions_without_value_are_dropped_and_listed(tmp_path, config):

@@ -45,6 +45,7 @@ def chapter5_estimate(config: Mapping, model_name: str, dataset: str, directions
                    derive_rng(config["seed"], f"{model_name}/{dataset}"), config["seed"], checkpoint=ckpt,
                    n_threads=threads)
     write_alg4(run, outputs)
+    ckpt.unlink(missing_ok=True)          # only an interrupted run needs it (to resume); a finished one leaves none
 
 
 def chapter5_figures(config: Mapping, model_name: str, dataset: str, directions_csv, inputs: Mapping[str, str],
