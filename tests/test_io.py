@@ -165,3 +165,22 @@ def test_duplicated_participant_column_named_with_both_positions(tmp_path):
     msg = str(e.value)
     assert "P01.1" not in msg and "field 'P01'" in msg and "line 1" in msg
     assert "duplicate column 'P01' (columns 2 and 4)" in msg
+
+
+def test_written_files_get_the_usual_mode_not_mkstemps_0600(tmp_path):
+    """CSV and text outputs are readable as open() would make them (0666 less the umask; issue 33: they were
+    0600, the temporary file's mode)."""
+    import os
+    import stat
+
+    import pandas as pd
+
+    from neckstrength.io import atomic_write_csv, atomic_write_text
+
+    old = os.umask(0o022)
+    os.umask(old)                                             # the process's umask, as at import
+    atomic_write_csv(pd.DataFrame({"a": [1]}), tmp_path / "x.csv")
+    atomic_write_text("hi", tmp_path / "x.txt")
+    for name in ("x.csv", "x.txt"):
+        mode = stat.S_IMODE((tmp_path / name).stat().st_mode)
+        assert mode == (0o666 & ~old), (name, oct(mode))      # e.g. 0644 under the common umask 022

@@ -430,6 +430,16 @@ def read_directions(path: str | Path) -> pd.DataFrame:
     return pd.read_csv(path, comment="#")
 
 
+def _umask() -> int:
+    m = os.umask(0o022)
+    os.umask(m)
+    return m
+
+
+#: the mode of a file the package writes: what open() would give (0666 less the umask), not mkstemp's 0600
+FILE_MODE = 0o666 & ~_umask()
+
+
 def atomic_write_csv(df: pd.DataFrame, path: str | Path, header_lines: list[str] | None = None,
                      float_format: str | None = None) -> None:
     path = Path(path)
@@ -440,6 +450,7 @@ def atomic_write_csv(df: pd.DataFrame, path: str | Path, header_lines: list[str]
             for h in header_lines or []:
                 fh.write(f"# {h}\n")
             df.to_csv(fh, index=False, float_format=float_format, lineterminator="\n")
+        os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -453,4 +464,5 @@ def atomic_write_text(text: str, path: str | Path) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     with os.fdopen(fd, "w", encoding="utf-8") as fh:
         fh.write(text)
+    os.chmod(tmp, FILE_MODE)
     os.replace(tmp, path)
