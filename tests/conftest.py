@@ -1,4 +1,5 @@
-"""Shared fixtures: one temporary copy of the workflow, and one run of the reduced (CI) pipeline in it.
+"""Shared fixtures: one temporary copy of the workflow, and one run of the reduced (CI) pipeline in it; one headless
+Chromium for every browser test (the report page, the app).
 
 ``tests/pipeline/test_pipeline.py``, ``tests/report/test_report.py`` and ``tests/browser/test_report_page.py`` need the
 reduced pipeline's outputs; the session fixture :func:`ci_pipeline` runs it once (about 2-3 minutes on 2 cores) for
@@ -6,6 +7,7 @@ all, and :func:`ci_report` builds its report once. The copy never touches a user
 ``results/``.
 """
 
+import os
 import shutil
 import subprocess
 import sys
@@ -72,3 +74,49 @@ def p2m7_full_config():
         return cfg, model_from_config(full_model_from_config(cfg), cfg, "p2m7"), build_directions(cfg)
     finally:
         os.chdir(cwd)
+
+
+# -- headless Chromium (Debian's ``chromium``, which test.sh installs when missing, driven by Playwright for Python
+# with ``executable_path``: Playwright's own browser downloads are never used; a missing browser is a failure that
+# says how to install it, not a skip). One session-scoped browser for all tests: Playwright's sync API cannot run
+# two at once.
+
+CHROMIUM_NAMES = ("chromium", "chromium-browser")
+
+
+def chromium_path() -> str:
+    """Path of the system Chromium (``$CHROMIUM`` first), or a clear error."""
+    for name in (os.environ.get("CHROMIUM"), *CHROMIUM_NAMES):
+        if name and shutil.which(name):
+            return shutil.which(name)
+    raise RuntimeError("no Chromium found: install Debian's `chromium` (apt-get install chromium; test.sh does "
+                       "this when missing) or set CHROMIUM to a Chromium executable")
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """One headless Chromium for the session (Playwright, system browser)."""
+    from playwright.sync_api import sync_playwright
+
+    path = chromium_path()
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=path, headless=True, args=["--no-sandbox", "--disable-gpu"])
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture
+def page_at(browser):
+    """``page_at(width, height)``: a fresh page (own context) with that window size; closed after the test."""
+    contexts = []
+
+    def make(width: int = 1400, height: int = 1000):
+        ctx = browser.new_context(viewport={"width": width, "height": height})
+        contexts.append(ctx)
+        return ctx.new_page()
+
+    yield make
+    for ctx in contexts:
+        ctx.close()

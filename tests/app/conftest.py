@@ -1,6 +1,6 @@
 """The app's fixtures: an app on a temporary sessions folder with CI-sized settings (p2m7, 2,000 candidates, the
 reduced config), a TestClient speaking to it as 127.0.0.1, and the real app served by uvicorn in a thread for the
-browser tests (headless Chromium: the shared launch of tests/browser/conftest.py)."""
+browser tests (headless Chromium: the shared ``browser`` / ``page_at`` of tests/conftest.py)."""
 
 from __future__ import annotations
 
@@ -10,64 +10,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-CFG = str(ROOT / "config" / "config.ci.yaml")
-TOKEN = "test-token-0123456789"
-HDR = {"X-Neckstrength-Token": TOKEN}
-P2M7 = {"model": "p2m7", "participant": "P01", "n_candidates": 2000, "seed": 7}
-
-
-SHARED_BROWSER = ROOT / "tests" / "browser" / "conftest.py"
-
-
-def _shared_browser_fixtures():
-    """tests/browser/conftest.py (the shared headless Chromium: ``browser``, ``page_at``) loaded under its own name."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("_neckstrength_browser_fixtures", SHARED_BROWSER)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-if SHARED_BROWSER.is_file():
-    _b = _shared_browser_fixtures()
-    browser, page_at, chromium_path = _b.browser, _b.page_at, _b.chromium_path
-else:                                   # the same launch, until the shared set-up is in the tree
-    import os
-    import shutil
-
-    def chromium_path() -> str:
-        """Debian's chromium (``$CHROMIUM`` first); never Playwright's own browser download."""
-        for name in (os.environ.get("CHROMIUM"), "chromium", "chromium-browser"):
-            if name and shutil.which(name):
-                return shutil.which(name)
-        raise RuntimeError("no Chromium found: install Debian's `chromium` (apt-get install chromium) or set CHROMIUM")
-
-    @pytest.fixture(scope="session")
-    def browser():
-        from playwright.sync_api import sync_playwright
-
-        with sync_playwright() as p:
-            b = p.chromium.launch(executable_path=chromium_path(), headless=True,
-                                  args=["--no-sandbox", "--disable-gpu"])
-            try:
-                yield b
-            finally:
-                b.close()
-
-    @pytest.fixture
-    def page_at(browser):
-        contexts = []
-
-        def make(width: int = 1400, height: int = 1000):
-            ctx = browser.new_context(viewport={"width": width, "height": height})
-            contexts.append(ctx)
-            return ctx.new_page()
-
-        yield make
-        for ctx in contexts:
-            ctx.close()
+from app_constants import CFG, P2M7, ROOT, TOKEN  # noqa: F401  (shared with the test modules)
 
 
 @pytest.fixture(scope="session")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import threading
 
-from conftest import CFG, HDR, P2M7, TOKEN
+from app_constants import CFG, HDR, P2M7, TOKEN
 
 from neckstrength.session import LOG, Session, SessionLog, SessionOptions, replay_into
 from neckstrength.session.log import release

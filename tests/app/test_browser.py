@@ -5,7 +5,7 @@ reload mid-session, stop, export; the numbers equal a ``session replay`` of the 
 
 from __future__ import annotations
 
-from conftest import CFG, P2M7, TOKEN
+from app_constants import CFG, P2M7, TOKEN
 
 from neckstrength.session import SessionOptions, replay_into
 from neckstrength.session.log import release

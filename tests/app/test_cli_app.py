@@ -15,7 +15,7 @@ import urllib.request
 
 import pytest
 
-from conftest import CFG, P2M7, ROOT
+from app_constants import CFG, P2M7, ROOT
 
 
 def _start(root, cache):

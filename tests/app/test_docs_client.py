@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import re
 
-from conftest import ROOT, TOKEN
+from app_constants import ROOT, TOKEN
 
 
 def test_docs_example_client(live_app, capsys):

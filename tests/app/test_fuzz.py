@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from urllib.parse import quote
 
-from conftest import HDR, P2M7
+from app_constants import HDR, P2M7
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
