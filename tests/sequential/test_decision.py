@@ -201,17 +201,25 @@ def test_estimate_writes_the_decision_for_a_model_with_the_group(tmp_path):
     """`neckstrength estimate` runs the same decision on the participant's table (s3m24, CI sizes)."""
     import os
 
-    from neckstrength.config import load_config
+    from neckstrength.config import build_directions, estimate_settings, full_model_from_config, load_config, \
+        model_from_config
     from neckstrength.estimate import _decision, _prepare_inputs
+    from neckstrength.io import read_directions
 
     cwd = os.getcwd()
     os.chdir(ROOT)
     try:
         cfg = load_config(ROOT / "config" / "config.ci.yaml")
-        prep = _prepare_inputs(cfg, "s3m24", "S003", ROOT / "data" / "thesis" / "table_A2_max_force.csv", None,
-                               tmp_path, lambda s: None)
-        got = _decision(cfg, "s3m24", "S003", prep, tmp_path, 1, lambda s: None)
-        assert _decision(cfg, "p2m7", "S003", prep, tmp_path, 1, lambda s: None) == {}     # no mf in p2m7
+        full = full_model_from_config(cfg)
+        d = build_directions(cfg)
+        models = {m: model_from_config(full, cfg, m) for m in ("s3m24", "p2m7")}
+        s = estimate_settings(cfg, "s3m24")
+        prep = _prepare_inputs(s.bootstrap_direction, models["s3m24"], d, "S003",
+                               ROOT / "data" / "thesis" / "table_A2_max_force.csv", None, tmp_path, lambda x: None)
+        d_used = read_directions(prep["directions"])
+        got = _decision(s, models["s3m24"], d_used, "S003", prep, tmp_path, 1, lambda x: None)
+        assert _decision(estimate_settings(cfg, "p2m7"), models["p2m7"], d_used, "S003", prep, tmp_path, 1,
+                         lambda x: None) == {}                                            # no mf in p2m7
     finally:
         os.chdir(cwd)
     hist = pd.read_csv(tmp_path / "decision.csv", comment="#")

@@ -39,7 +39,11 @@ def test_directions_without_value_are_dropped_and_listed(tmp_path, config):
     missing = res.exclusions[(res.exclusions["what"] == "direction") & (res.exclusions["participant"] == "P01")]
     assert len(missing) == 1
     notes = []
-    prep = _prepare_inputs(config, "s3m24", "P01", outputs["max_force"], None, tmp_path, notes.append)
+    from neckstrength.config import estimate_settings, full_model_from_config, model_from_config
+
+    model = model_from_config(full_model_from_config(config), config, "s3m24")
+    prep = _prepare_inputs(estimate_settings(config, "s3m24").bootstrap_direction, model, _directions(config), "P01",
+                           outputs["max_force"], None, tmp_path, notes.append)
     assert prep["dropped"] == list(missing["direction"]) and len(prep["used"]) == 24
     assert prep["dropped"][0] in notes[0]
     d = pd.read_csv(prep["directions"], comment="#")
