@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from app_constants import CFG, P2M7, ROOT, TOKEN  # noqa: F401  (shared with the test modules)
+from app_constants import CFG, HDR, P2M7, ROOT, TOKEN  # noqa: F401  (shared with the test modules)
 
 
 @pytest.fixture(scope="session")
