@@ -357,7 +357,8 @@ def _cmd_session(args) -> int:
                               n_candidates=args.n_candidates, prior_scale=args.prior_scale,
                               gain_frac=args.stop_frac, cache=args.cache, seed=args.seed, criterion=args.criterion,
                               postures=args.postures, posture_change_cost=args.posture_change_cost,
-                              prevalence=args.prevalence, noise=args.noise, noise_source=args.noise_source)
+                              prevalence=args.prevalence, noise=args.noise, noise_source=args.noise_source,
+                              emg_channels=args.emg)
         if args.action == "replay":          # a failed replay removes what it created (session.json, log, lock)
             return replay_into(args.out, opts, args.csv, threads=args.threads)
         return run_interactive(Session.create(args.out, opts, progress=print, threads=args.threads))
@@ -580,6 +581,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "repeat trials (default: config clinician.decision.noise, 0.05)")
         a.add_argument("--noise-source", default=None,
                        help="where --noise comes from, printed with the decision (e.g. 'repeats of P01, 3 trials')")
+        a.add_argument("--emg", default=None, metavar="CH1,CH2,...|surface|deep|all",
+                       help="the EMG channels recorded (muscles; surface: config chapter6.emg_groups, deep: the "
+                            "deficit group, fine-wire): act= accepts only these; default: not chosen, any muscle")
     a = ss.add_parser("resume", **_doc("session resume"), help="resume a session from its log")
     a.add_argument("--out", required=True, help="the session folder to resume")
     for a in ss.choices.values():

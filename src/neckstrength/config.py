@@ -588,7 +588,8 @@ def session_settings(config: Mapping, model_name: str):
                            postures=tuple(config["postures"]["postures"]),
                            force_length=str(config["postures"]["force_length"]),
                            model_dir=str(config["data"]["model_dir"]),
-                           test_point_spec=config["geometry"]["test_point_spec"])
+                           test_point_spec=config["geometry"]["test_point_spec"],
+                           emg_groups=tuple(config.get("chapter6", {}).get("emg_groups", {}).get(model_name, [])))
 
 
 def session_defaults(config: Mapping, model_name: str) -> dict:

@@ -8,7 +8,7 @@ import threading
 
 from app_constants import CFG, HDR, P2M7, TOKEN
 
-from neckstrength.session import LOG, Session, SessionLog, SessionOptions, replay_into
+from neckstrength.session import LOG, InputError, Session, SessionLog, SessionOptions, replay_into
 from neckstrength.session.log import release
 
 
@@ -95,6 +95,42 @@ def test_terminal_to_browser_and_back(client, cache_dir):
     release(folder)
 
 
+def test_emg_channels_chosen_at_start(client, cache_dir):
+    """The start page's EMG channels: offered per model (surface EMG of config chapter6.emg_groups, the deficit group
+    as deep channels), stored in session.json, the only channels a tell (or the terminal's act=) accepts; a bad value
+    or another channel is a 422 naming the channel; a terminal resume sees the same channels."""
+    offer = client.get("/api/sessions").json()["emg"]
+    assert offer["p2m7"] == {"surface": ["TS-B", "TS-E"], "deep": []}
+    assert offer["s3m24"]["deep"] == ["mf-R", "mf-L"] and "SCM-R" in offer["s3m24"]["surface"]
+    r = client.post("/api/sessions", json={"name": "E0", **P2M7, "emg_channels": ["TS-X"]})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "emg_channels"]
+    assert "TS-B" in r.json()["detail"][0]["msg"]
+    st = _create(client, "E1", emg_channels=["TS-E", "TS-B"])
+    assert st["snapshot"]["emg"]["channels"] == ["TS-B", "TS-E"]        # in the model's muscle order
+    assert json.loads((client.root / "E1" / "session.json").read_text())["options"]["emg_channels"] == ["TS-B", "TS-E"]
+    for acts, loc in (({"TC-E": 0.3}, ["body", "activations", "TC-E"]), ({"TS-E": -0.1}, ["body", "activations", "TS-E"]),
+                      ({"TS-B": 0.2, "TS-E": 2}, ["body", "activations", "TS-E"])):
+        r = client.post("/api/sessions/E1/tell", json={"force_N": 100, "activations": acts})
+        assert r.status_code == 422 and r.json()["detail"][0]["loc"] == loc, r.text
+    assert "not chosen" in client.post("/api/sessions/E1/tell", json={"force_N": 100, "activations": {"TC-E": 0.3}}
+                                       ).json()["detail"][0]["msg"]
+    r = client.post("/api/sessions/E1/tell", json={"force_N": 100, "activations": {"TS-E": 0.35}}).json()
+    assert r["record"]["activations"] == {"TS-E": 0.35}
+    assert client.post("/api/sessions/E1/close").json()["closed"]
+    s = Session.resume(client.root / "E1", threads=1)                 # the terminal sees the same channels
+    assert s.emg_channels == ["TS-B", "TS-E"] and s.snapshot()["emg"]["channels"] == ["TS-B", "TS-E"]
+    try:
+        s.tell("90 act=TC-E:0.2")
+        raise AssertionError("act= of a channel not chosen was accepted")
+    except InputError as exc:
+        assert "not chosen" in str(exc)
+    release(client.root / "E1")
+    st = _create(client, "E2", emg_channels=[])                      # none ticked: forces only
+    assert st["snapshot"]["emg"]["channels"] == []
+    r = client.post("/api/sessions/E2/tell", json={"force_N": 100, "activations": {"TS-B": 0.3}})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "activations", "TS-B"]
+
+
 def test_token_and_host(make_app):
     from fastapi.testclient import TestClient
 
@@ -123,8 +159,9 @@ BAD_TELLS = [
     ({"force_N": 2500}, "force_N"), ({}, "force_N"), ({"force_N": 100, "trials_N": [100]}, "force_N"),
     ({"trials_N": [100, -2]}, "trials_N"), ({"trials_N": []}, "trials_N"),
     ({"force_N": 100, "direction": "sideways"}, "direction"), ({"force_N": 100, "test": "flex20:back"}, "test"),
-    ({"force_N": 100, "activations": {"XX": 0.3}}, "activations"),
-    ({"force_N": 100, "activations": {"TS-B": 1.5}}, "activations"), ({"force_N": 100, "colour": "red"}, "colour"),
+    ({"force_N": 100, "activations": {"XX": 0.3}}, ("activations", "XX")),
+    ({"force_N": 100, "activations": {"TS-B": 1.5}}, ("activations", "TS-B")),
+    ({"force_N": 100, "activations": {"TS-B": "high"}}, ("activations", "TS-B")), ({"force_N": 100, "colour": "red"}, "colour"),
     ({"force_N": 100, "trial": 0}, "trial"), ({"force_N": 100, "expect_step": "two"}, "expect_step"),
 ]
 
@@ -134,7 +171,8 @@ def test_bad_tell_names_the_field(client):
     for body, field in BAD_TELLS:
         r = client.post("/api/sessions/P01/tell", json=body)
         assert r.status_code == 422, (body, r.text)
-        assert r.json()["detail"][0]["loc"][-1] == field, (body, r.json())
+        loc = r.json()["detail"][0]["loc"]
+        assert (tuple(loc[-2:]) if isinstance(field, tuple) else loc[-1]) == field, (body, r.json())
     assert client.get("/api/sessions/P01").json()["snapshot"]["n_tested"] == 0     # nothing changed
     assert not (client.root / "P01" / LOG).exists() or not (client.root / "P01" / LOG).read_text().strip()
 

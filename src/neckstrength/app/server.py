@@ -34,7 +34,16 @@ from neckstrength.app.security import LOCAL_HOSTS, TokenHostMiddleware
 from neckstrength.app.sessions import NAME_RE, TRIALS, Conflict, NotFound, Registry, check_name
 from neckstrength.app.words import clinician_view
 from neckstrength.errors import InputError, SessionLockedError
-from neckstrength.session import CRITERIA, LOG, MODELS, Entry, SessionOptions, parse_activations, parse_force
+from neckstrength.session import (
+    CRITERIA,
+    LOG,
+    MODELS,
+    Entry,
+    SessionOptions,
+    emg_choices,
+    parse_activations,
+    parse_force,
+)
 
 HERE = Path(__file__).parent
 EXPORTS = ("summary.csv", "summary.png", "steps.csv", "measurements.csv", "report.html", "session.json",
@@ -48,9 +57,9 @@ DEFAULT_REST_S = 60          # rest between trials: the clinic's choice (Appendi
 class FieldError(Exception):
     """Bad input naming its field (-> 422)."""
 
-    def __init__(self, field: str, msg: str, where: str = "body"):
+    def __init__(self, field: str | tuple, msg: str, where: str = "body"):
         super().__init__(msg)
-        self.loc = [where, field]
+        self.loc = [where, *field] if isinstance(field, tuple) else [where, field]
         self.msg = msg
 
 
@@ -78,6 +87,10 @@ class CreateBody(BaseModel):
     prior_scale: float = Field(1.0, gt=0, le=10)
     stop_frac: float | None = Field(None, gt=0, lt=1)
     priorities: dict[str, float] = Field(default_factory=dict, description="Eq. 6.8 weights {muscle: weight >= 0}")
+    emg_channels: list[str] | None = Field(None, max_length=64,
+                                           description="the EMG channels recorded (muscles of GET /api/sessions "
+                                                       "'emg'; or 'surface', 'deep', 'all'); None: not chosen, any "
+                                                       "muscle's activation accepted; []: no EMG")
 
 
 class TellBody(BaseModel):
@@ -93,7 +106,8 @@ class TellBody(BaseModel):
     trials_N: list[float] | None = Field(None, min_length=1, max_length=MAX_TRIALS,
                                          description="the forces of repeat trials in N; the largest is recorded")
     trial: int | None = Field(None, ge=1, le=MAX_TRIALS, description="which trial force_N came from (recorded)")
-    activations: dict[str, float] | None = Field(None, description="EMG activations {muscle: fraction in [0, 1]}")
+    activations: dict[str, float] | None = Field(None, description="EMG activations {channel: fraction of maximum "
+                                                                   "in [0, 1]}, the session's EMG channels only")
     expect_step: int | None = Field(None, ge=1, description="the step the client showed; 409 when the session has "
                                                             "moved on (another tab or client)")
 
@@ -199,9 +213,26 @@ def create_app(root: str | Path = "sessions", token: str = "", config: str = "co
             raise FieldError("name", str(exc), "path") from None
 
     # -- the API
+    emg_by_model: dict = {}
+
+    def emg_offer() -> dict:
+        """{model: {"surface": [...], "deep": [...]}}: the EMG channels a new session of each model offers (the
+        engine's :func:`~neckstrength.session.emg_choices` on the app's config; computed once)."""
+        if not emg_by_model:
+            from neckstrength.config import full_model_from_config, load_config, model_from_config, session_settings
+
+            cfg = load_config(reg.config)
+            full = full_model_from_config(cfg)
+            for m in MODELS:
+                muscles = list(model_from_config(full, cfg, m).muscle_names)
+                cs = session_settings(cfg, m)
+                emg_by_model[m] = emg_choices(muscles, cs.emg_groups, cs.decision.group_indices(muscles))
+        return emg_by_model
+
     @app.get("/api/sessions", tags=["sessions"], summary="the sessions in the app's folder")
     def list_sessions():
-        return {"root": str(reg.root), "sessions": reg.listing(), "models": list(MODELS), "criteria": list(CRITERIA)}
+        return {"root": str(reg.root), "sessions": reg.listing(), "models": list(MODELS), "criteria": list(CRITERIA),
+                "emg": emg_offer()}
 
     @app.post("/api/sessions", status_code=201, tags=["sessions"], summary="create a session")
     def create_session(body: CreateBody):
@@ -212,7 +243,8 @@ def create_app(root: str | Path = "sessions", token: str = "", config: str = "co
                               config=reg.config, n_candidates=body.n_candidates, prior_scale=body.prior_scale,
                               gain_frac=body.stop_frac, cache=reg.cache, seed=body.seed, criterion=body.criterion,
                               postures=body.postures, posture_change_cost=body.posture_change_cost,
-                              prevalence=body.prevalence, noise=body.noise, noise_source=body.noise_source)
+                              prevalence=body.prevalence, noise=body.noise, noise_source=body.noise_source,
+                              emg_channels=body.emg_channels)
         try:
             o = reg.create(body.name, opts)
         except ValueError as exc:
@@ -259,15 +291,17 @@ def create_app(root: str | Path = "sessions", token: str = "", config: str = "co
             force = parse_force(repr(float(max(forces))))
             acts = None
             if body.activations:
-                bad = [k for k in body.activations if not k or any(c in k for c in ",:=")]
-                if bad:
-                    raise FieldError("activations", f"'{bad[0]}' is not a muscle of this model; muscles: "
-                                                    f"{', '.join(s.muscles)}")
-                try:
-                    acts = parse_activations("act=" + ",".join(f"{k}:{float(v)!r}" for k, v in
-                                                               body.activations.items()), s.muscles)
-                except InputError as exc:
-                    raise FieldError("activations", str(exc)) from None
+                acts = {}
+                for k, v in body.activations.items():
+                    loc = ("activations", k)
+                    if not k or any(c in k for c in ",:=") or k not in s.muscles:
+                        raise FieldError(loc, f"'{k}' is not a muscle of this model; EMG channels of this session: "
+                                              f"{', '.join(s.emg_channels if s.emg_channels is not None else s.muscles)}")
+                    try:
+                        s.check_activations({k: 0.0})
+                        acts.update(parse_activations(f"act={k}:{float(v)!r}", s.muscles))
+                    except InputError as exc:
+                        raise FieldError(loc, str(exc)) from None
             try:
                 ans = s.tell(Entry("measure", test, force, acts))
             except InputError as exc:
@@ -357,7 +391,7 @@ def create_app(root: str | Path = "sessions", token: str = "", config: str = "co
     @app.get("/", response_class=HTMLResponse, include_in_schema=False)
     def start_page(request: Request):
         return page(request, "start.html", sessions=reg.listing(), models=MODELS, criteria=CRITERIA,
-                    root=str(reg.root))
+                    root=str(reg.root), emg=emg_offer())
 
     @app.get("/s/{name}", response_class=HTMLResponse, include_in_schema=False)
     def test_page(request: Request, name: str):
@@ -389,7 +423,7 @@ def _fmt(x, nd: int = 0, suffix: str = "") -> str:
 
 
 def _option_field(msg: str) -> str:
-    for key, field in (("--posture-change-cost", "posture_change_cost"), ("--postures", "postures"),
+    for key, field in (("--emg", "emg_channels"), ("--posture-change-cost", "posture_change_cost"), ("--postures", "postures"),
                        ("criterion", "criterion"), ("priorit", "priorities"), ("prevalence", "prevalence"),
                        ("noise", "noise"), ("n_candidates", "n_candidates"), ("exists", "name")):
         if key in msg:

@@ -31,11 +31,21 @@ from neckstrength.session.parse import (
 from neckstrength.session.plots import summary_figure
 from neckstrength.session.render import HELP, MIN_MC_CLUSTERS, bar_chart, where_to_push
 from neckstrength.session.repl import replay_csv, replay_into, run_interactive
-from neckstrength.session.state import CRITERIA, MODELS, Session, SessionOptions, resolve_postures, session_threads
+from neckstrength.session.state import (
+    CRITERIA,
+    MODELS,
+    Session,
+    SessionOptions,
+    emg_choices,
+    resolve_emg_channels,
+    resolve_postures,
+    session_threads,
+)
 
 __all__ = [
     "InputError", "SessionLockedError", "HEADER", "LOG", "SessionLog", "effective_entries", "Entry", "check_posture",
     "parse_activations", "parse_entry", "parse_force", "parse_priorities", "read_measurements_csv", "summary_figure",
     "HELP", "MIN_MC_CLUSTERS", "bar_chart", "where_to_push", "replay_csv", "replay_into", "run_interactive",
-    "CRITERIA", "MODELS", "Session", "SessionOptions", "resolve_postures", "session_threads",
+    "CRITERIA", "MODELS", "Session", "SessionOptions", "emg_choices", "resolve_emg_channels", "resolve_postures",
+    "session_threads",
 ]

@@ -32,3 +32,4 @@ class SessionSettings:
     force_length: str = "relative"             # postures.force_length
     model_dir: str = "data/model"              # data.model_dir: the posture tables
     test_point_spec: str | None = "data/geometry/test_point_spec.csv"   # geometry.test_point_spec: where to push
+    emg_groups: tuple[str, ...] = ()          # chapter6.emg_groups.<model>: the surface EMG channels (Appendix A.1)

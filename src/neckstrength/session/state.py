@@ -83,6 +83,9 @@ class SessionOptions:
     noise: float | None = None                          # the decision's measurement noise (sd of the relative
                                                         # force error); None = config clinician.decision.noise
     noise_source: str | None = None                     # where ``noise`` comes from (printed with the answer)
+    emg_channels: list | str | None = None              # the muscles whose EMG is recorded (:func:`emg_choices`;
+                                                        # 'surface', 'deep', 'all' or names); None = not chosen: any
+                                                        # muscle's activation is accepted (the terminal's act=)
 
 
 def session_threads(threads: int | None) -> int:
@@ -116,6 +119,45 @@ def resolve_postures(spec: str | Sequence[str] | None, known: Sequence[str]) -> 
         if x not in out:
             out.append(x)
     return None if out == ["neutral"] else out
+
+
+def emg_choices(muscles: Sequence[str], surface_groups: Sequence[str], deep: Sequence[int]) -> dict:
+    """The EMG channels a session of a model with these ``muscles`` offers: ``{"surface": [...], "deep": [...]}``.
+    Surface: the muscles of ``surface_groups`` (config chapter6.emg_groups.<model>: the surface EMG of Appendix A.1,
+    both sides), the channels the decision study's ``forces+emg`` protocol simulates; deep: the deficit decision's
+    group (``deep``: its muscle indices; fine-wire EMG, the study's ``forces+emg+deep``). A channel bounds the
+    muscle's activation to the value entered +- the joint posterior's ``emg_band``."""
+    base = [m[:-2] if m.endswith(("-R", "-L")) else m for m in muscles]
+    deep_names = [muscles[i] for i in sorted(int(i) for i in deep)]
+    surface = [m for m, b in zip(muscles, base) if b in set(surface_groups) and m not in deep_names]
+    return {"surface": surface, "deep": deep_names}
+
+
+def resolve_emg_channels(spec: str | Sequence[str] | None, choices: dict) -> list[str] | None:
+    """``--emg`` -> the session's EMG channels in the model's muscle order (None: not chosen). ``spec``: a
+    comma-separated string or a list of channel names, or ``surface``, ``deep``, ``all`` (= both); an empty list or
+    ``none``: no EMG recorded (every act= is refused)."""
+    if spec is None:
+        return None
+    items = [x.strip() for x in (spec.split(",") if isinstance(spec, str) else spec)]
+    items = [x for x in items if x]
+    allowed = list(choices["surface"]) + list(choices["deep"])
+    if items in ([], ["none"]):
+        return []
+    want: set[str] = set()
+    for x in items:
+        if not isinstance(x, str):
+            raise ValueError(f"--emg: channel {x!r} is not a name; allowed: {', '.join(allowed) or 'none'}")
+        if x in ("surface", "deep", "all"):
+            want |= set(allowed if x == "all" else choices[x])
+            continue
+        if x not in allowed:
+            close = difflib.get_close_matches(x, allowed, n=1)
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            raise ValueError(f"--emg: '{x}' is not an EMG channel of this model{hint}; allowed: "
+                             f"{', '.join(allowed) or 'none'} (or surface, deep, all)")
+        want.add(x)
+    return [m for m in allowed if m in want]
 
 
 def _silent(_: str) -> None:
@@ -199,6 +241,9 @@ class Session:
             self.force_scale = np.tile(self.force_scale, len(postures))
         self.gamma = (np.array([float(opts.priorities.get(n, 0.0)) for n in self.muscles])
                       if opts.priorities else None)
+        self.emg_options = emg_choices(self.muscles, cs.emg_groups, cs.decision.group_indices(self.muscles))
+        self.emg_channels = resolve_emg_channels(opts.emg_channels, self.emg_options)
+        self.opts = opts = replace(opts, emg_channels=self.emg_channels)
         self.gain_frac = float(opts.gain_frac) if opts.gain_frac is not None else cs.gain_frac
         self.seed = int(cs.seed if opts.seed is None else opts.seed)
         s = self.settings
@@ -408,10 +453,29 @@ class Session:
         logged only (:meth:`stop` also writes the summary)."""
         return self._accept(e)[0]
 
+    def emg_info(self) -> dict:
+        """The session's EMG channels (``channels``: None = not chosen, any muscle accepted), the ones the model
+        offers (``choices``), and how an entry is used (``band``, ``label``)."""
+        band = float(self.settings.emg_band)
+        return {"channels": self.emg_channels, "choices": self.emg_options, "band": band,
+                "label": (f"EMG: activation as a fraction of maximum (0-1); the estimate bounds the muscle's activation "
+                          f"to the value +- {band:g} (config emg_band)")}
+
+    def check_activations(self, activations: dict | None) -> None:
+        """:class:`InputError` when ``activations`` names a muscle that is not one of the session's EMG channels
+        (chosen at start; any muscle when none were chosen)."""
+        if not activations or self.emg_channels is None:
+            return
+        for name in activations:
+            if name not in self.emg_channels:
+                raise InputError(f"EMG of {name} was not chosen for this session; its EMG channels: "
+                                 f"{', '.join(self.emg_channels) or 'none (no EMG recorded)'}")
+
     def _accept(self, e: Entry) -> tuple[str, dict]:
         """(echo, the record as written to the log) of :meth:`accept`."""
         if e.kind == "measure":
             _check_direction(e.direction, self.directions, self.state.tested)
+            self.check_activations(e.activations)
             # Algorithm 8 first (nothing changes yet), so that a failing computation never reaches the log
             step = self.state.likelihood(e.direction, e.force, e.activations)
             rec = {"action": "measure", "direction": e.direction, "force_N": e.force, "activations": e.activations}
@@ -644,7 +708,7 @@ class Session:
         f_c, sd_c posterior mean and sd in N, entropy in nats; ``uncertainty_label``; ``calibrated``: False);
         ``measurements`` (in order: test, posture, direction, force_N, activations, predicted_N; with
         ``predicted_label``); ``deficit`` (P(deficit) of the configured group and its trend, with ``label`` and the
-        screen's ``text``; None when the model lacks the group); ``decision`` (the deficit decision: decision,
+        screen's ``text``; None when the model lacks the group); ``emg`` (:meth:`emg_info`); ``decision`` (the deficit decision: decision,
         p_deficit, log_bf ± log_bf_se, misfit_rms, trend, ``settings`` and ``settings_label`` it depends on, ``label``,
         ``text``; None without one); ``recommendation`` (``stop``: bool, ``text``); ``screen`` (the terminal's text
         of this step). A resumed session's state equals the state before the pause."""
@@ -688,7 +752,7 @@ class Session:
                              for r, v in zip(meas, pred)],
             "predicted_label": "predicted_N: the model's maximum force in the test's direction at the posterior-mean "
                                "strengths f_c, activations unconstrained (a point prediction, no uncertainty)",
-            "deficit": deficit, "decision": decision,
+            "deficit": deficit, "decision": decision, "emg": self.emg_info(),
             "recommendation": {"stop": bool(stop), "text": why}, "screen": render.screen(self)})
 
     # -- P(deficit) of the configured group (clinician.deficit), with its trend

@@ -28,13 +28,24 @@ var NS = (function () {
 
   /* ---- start page ---- */
   function startPage() {
-    var f = $("create");
+    var f = $("create"), offer = JSON.parse($("emg-offer").textContent);
+    function emgOptions() {     // the EMG channels the chosen model offers (surface, deep), as checkboxes
+      var o = offer[f.elements.model.value] || {surface: [], deep: []};
+      var grp = function (title, names) {
+        return names.length ? '<div class="emg-group"><b>' + title + '</b>' + names.map(function (m) {
+          return '<label class="inline"><input type="checkbox" name="emg_channel" value="' + esc(m) + '"> ' + esc(m) + '</label>'; }).join("") + '</div>' : ""; };
+      $("emg-options").innerHTML = (grp("surface EMG (Appendix A.1)", o.surface) + grp("deep extensors, fine-wire EMG", o.deep)) ||
+        '<p class="hint">This model offers no EMG channel.</p>';
+    }
+    f.elements.model.addEventListener("change", emgOptions);
+    emgOptions();
     f.addEventListener("submit", function (ev) {
       ev.preventDefault();
-      var body = {}, fd = new FormData(f);
+      var body = {emg_channels: []}, fd = new FormData(f);
       fd.forEach(function (v, k) {
         v = String(v).trim();
         if (v === "") return;
+        if (k === "emg_channel") { body.emg_channels.push(v); return; }
         body[k] = ["prevalence", "noise"].indexOf(k) >= 0 ? Number(v) :
                   ["n_candidates", "seed"].indexOf(k) >= 0 ? parseInt(v, 10) : v;
       });
@@ -170,7 +181,7 @@ var NS = (function () {
       $("retest-label").textContent = v.retest_label + ". " + snap.predicted_label;
       $("legend").innerHTML = v.legend.map(function (l) { return '<dt>' + esc(l.code) + '</dt><dd>' + esc(l.name) + (l.where ? ": " + esc(l.where) : "") + '</dd>'; }).join("");
       $("screen").textContent = snap.screen;
-      $("emg-example").textContent = st.muscles[0] + ":0.4";
+      emgFields(snap.emg);
       var sel = $("other-test"), keep = sel.value;
       sel.innerHTML = '<option value="">the proposed test</option>' + snap.remaining.map(function (t) { return '<option>' + esc(t) + '</option>'; }).join("");
       sel.value = snap.remaining.indexOf(keep) >= 0 ? keep : "";
@@ -190,15 +201,31 @@ var NS = (function () {
       if (!isFinite(f)) throw new Error("force: '" + txt + "' is not a number (in N, e.g. 142)");
       return f;   // the server checks the range and names the problem
     }
-    function emg() {
-      var t = $("emg").value.trim(); if (!t) return undefined;
-      var out = {};
-      t.split(",").forEach(function (it) {
-        var kv = it.split(":"); if (kv.length !== 2) throw new Error("activations: '" + it.trim() + "' is not MUSCLE:VALUE");
-        out[kv[0].trim()] = Number(kv[1]);
-      });
-      return out;
+    var emgShown = null;
+    function emgFields(e) {   // one numeric field per EMG channel of the session (chosen on the start page)
+      var chans = e.channels === null ? e.choices.surface.concat(e.choices.deep) : e.channels, key = JSON.stringify(chans);
+      if (key === emgShown) return;
+      emgShown = key;
+      $("emg-summary").textContent = chans.length ? "(" + chans.length + " channel" + (chans.length > 1 ? "s" : "") + ", optional)" : "(none recorded)";
+      $("emg-fields").innerHTML = chans.map(function (m) {
+        return '<label>' + esc(m) + '<input type="number" class="emg-in" data-channel="' + esc(m) + '" id="emg-' + esc(m) + '" min="0" max="1" step="any" inputmode="decimal" placeholder="0-1"></label>'; }).join("");
+      $("emg-label").textContent = chans.length ? e.label + (e.channels === null ? "; channels not chosen at the start: the model's EMG channels" : "") + ". An empty field: not recorded in this test." :
+        "No EMG channel was chosen when this session started: forces only.";
     }
+    function emg() {          // {channel: value} of the filled fields; an error naming the channel for a bad value
+      var out = {}, n = 0;
+      document.querySelectorAll("#emg-fields input.emg-in").forEach(function (el) {
+        var t = el.value.trim(), ch = el.getAttribute("data-channel"); el.setAttribute("aria-invalid", "false");
+        if (el.validity && el.validity.badInput) { el.setAttribute("aria-invalid", "true"); throw new Error("EMG " + ch + ": not a number (a fraction of maximum, 0-1)"); }
+        if (t === "") return;
+        var a = Number(t);
+        if (!isFinite(a)) { el.setAttribute("aria-invalid", "true"); throw new Error("EMG " + ch + ": '" + t + "' is not a number (a fraction of maximum, 0-1)"); }
+        if (a < 0 || a > 1) { el.setAttribute("aria-invalid", "true"); throw new Error("EMG " + ch + ": " + t + " is outside 0-1 (a fraction of maximum, not %)"); }
+        out[ch] = a; n += 1;
+      });
+      return n ? out : undefined;
+    }
+    function clearEmg() { document.querySelectorAll("#emg-fields input.emg-in").forEach(function (el) { el.value = ""; }); }
     var busy = false;
     function guard(fn) {      // one request at a time from this page (a double click does not send twice)
       return function () {
@@ -215,7 +242,7 @@ var NS = (function () {
       if (other) body.test = other;
       body.expect_step = cur.snapshot.step;
       var a = emg(); if (a) body.activations = a;
-      return api("POST", base + "/tell", body).then(function (ans) { trials = []; $("trials").hidden = true; $("force").value = ""; $("emg").value = ""; $("other-test").value = ""; after(ans); $("force").focus(); });
+      return api("POST", base + "/tell", body).then(function (ans) { trials = []; $("trials").hidden = true; $("force").value = ""; clearEmg(); $("other-test").value = ""; after(ans); $("force").focus(); });
     }
     function showTrials(msg) {
       var t = cur.trials, html = trials.map(function (f, i) { return "trial " + (i + 1) + ": " + fmt(f) + " N"; }).join(" · ");
