@@ -195,3 +195,28 @@ def test_attribution_summary_names_the_items_a_change_moves():
     assert s.loc["baseline", "within_tolerance"] == 1 and s.loc["x", "within_tolerance"] == 2
     assert s.loc["x", "moved_onto"] == 1 and "G0 f_c" in s.loc["x", "moved_onto_items"]
     assert s.loc["x", "on_print"] == 2 and s.loc["x", "moved_off"] == 0                   # 67.8 is 68 on the print
+
+
+def test_chapter6_attribution_gives_each_variant_its_own_band(tmp_path):
+    """Table 6.1 with one input changed: K members per variant (the same streams), a band per printed cell, and the
+    summary's counts; a change of q moves our members (so the check can fail), an unknown key is an error."""
+    import copy
+
+    from neckstrength.config import ConfigError
+    from neckstrength.pipeline.reruns import reruns_attribution_chapter6
+    from neckstrength.report.scorecard.distribution import ATTRIBUTION_COLUMNS
+
+    cfg = copy.deepcopy(load_config(ROOT / "config/config.ci.yaml"))
+    cfg["reruns"]["chapter6"]["n_candidates"] = 2000
+    cfg["reruns"]["attribution"]["chapter6"] = {"datasets": ["S005"], "members": 2,
+                                                "variants": [{"name": "q_50", "set": {"chapter6.q": 50.0}}]}
+    s = reruns_attribution_chapter6(cfg, "p2m7", tmp_path / "a.csv", tmp_path / "s.csv")
+    assert list(s.columns) == ATTRIBUTION_COLUMNS and list(s["variant"]) == ["baseline", "q_50"]
+    assert (s["members"] == 2).all() and (s["items"] == 15).all()           # S005: 7 f_c, 7 v_c, D(f_c)
+    items = pd.read_csv(tmp_path / "a.csv", comment="#")
+    base, q50 = (items[items["variant"] == v].set_index("item")["ours"] for v in ("baseline", "q_50"))
+    assert (base - q50).abs().max() > 0                                      # the change moves our values
+    assert (items["band_low"] <= items["ours"]).all() and (items["ours"] <= items["band_high"]).all()
+    cfg["reruns"]["attribution"]["chapter6"]["variants"] = [{"name": "bad", "set": {"chapter6.nope": 1}}]
+    with pytest.raises(ConfigError, match="bad"):
+        reruns_attribution_chapter6(cfg, "p2m7", tmp_path / "a.csv", tmp_path / "s.csv")

@@ -311,6 +311,8 @@ def reruns_outputs():
     if config["reruns"]["attribution"]["variants"]:
         out += [f"results/reruns/chapter5/{m}/attribution_summary.csv"
                 for m in config["reruns"]["attribution"]["models"] if m in config["chapter5"]["models"]]
+    if config["reruns"]["attribution"]["chapter6"]["variants"] and "p2m7" in CH6_MODELS:
+        out += ["results/reruns/chapter6/p2m7/attribution_summary.csv"]
     return out + [f"results/report/scorecard_distribution{s}.csv" for s in ("", "_summary", "_spread")]
 
 

@@ -77,8 +77,8 @@ rule reruns_attribution:
             labels={"table": "{named}: Chapter 5 with one input changed at a time"},
         ),
     params:
-        settings=settings("chapter5", "data", "geometry", "model", "models", "reruns.attribution", "reruns.level",
-            "seed"),
+        settings=settings("chapter5", "data", "geometry", "model", "models", "reruns.attribution.models",
+            "reruns.attribution.variants", "reruns.level", "seed"),
     log:
         "logs/reruns/chapter5/{named}/attribution.log",
     threads: 1
@@ -88,3 +88,36 @@ rule reruns_attribution:
         "../envs/neckstrength.yaml"
     script:
         "../scripts/reruns_attribution.py"
+
+
+rule reruns_attribution_chapter6:
+    # Table 6.1 rerun with one input changed at a time (reruns.attribution.chapter6), K members per variant and
+    # data set: which input moves our distribution onto the thesis's value
+    input:
+        MODEL_TABLES,
+        THESIS_TABLES,
+        geometry_inputs(),
+        measurements=config["data"]["measurements"],
+    output:
+        runs="results/reruns/chapter6/{named}/attribution.csv",
+        summary=report(
+            "results/reruns/chapter6/{named}/attribution_summary.csv",
+            caption="../report/reruns_attribution.rst",
+            category="Scorecard",
+            subcategory="run-to-run",
+            labels={"table": "{named}: Table 6.1 with one input changed at a time"},
+        ),
+    params:
+        settings=settings("chapter5", "chapter6", "data", "geometry", "model", "models", "reruns.attribution.chapter6",
+            "reruns.chapter6.n_candidates", "reruns.level", "seed"),
+    wildcard_constraints:
+        named="p2m7",
+    log:
+        "logs/reruns/chapter6/{named}/attribution.log",
+    threads: 1
+    resources:
+        mem_mb=4000,
+    conda:
+        "../envs/neckstrength.yaml"
+    script:
+        "../scripts/reruns_attribution_chapter6.py"

@@ -142,69 +142,146 @@ def report_distribution(config: Mapping, band_csvs: Sequence[str | Path], scorec
     return table
 
 
-def reruns_attribution(config: Mapping, model_name: str, out_runs, out_summary) -> pd.DataFrame:
-    """Chapter 5 rerun with one input changed at a time (``reruns.attribution.variants``): per variant and data
-    set one Algorithm 4 run (it draws nothing at random, so one run is its whole distribution), each printed cell
-    beside it, and per variant the items the change moves onto the thesis's value."""
-    import json
-
-    from neckstrength.config import ConfigError, build_directions, plain, validate_config
-    from neckstrength.errors import DataValidationError
-    from neckstrength.report.scorecard.distribution import attribution_summary
-    from neckstrength.reruns.attribution import apply_variant
+def _variants(config: Mapping, section: Mapping) -> dict:
+    """'baseline' (no change) and the variants of ``section`` (a ``reruns.attribution`` block), in config order."""
+    from neckstrength.config import ConfigError, plain
 
     variants = {"baseline": {}}
-    for v in plain(config["reruns"]["attribution"]["variants"]):
+    for v in plain(section["variants"]):
         if v["name"] in variants:
             raise ConfigError("reruns.attribution.variants", [f"variant name {v['name']!r} used twice"])
         variants[v["name"]] = v["set"]
-    # the sections a variant may change and the model / data sets read (validated again, defaults filled, per variant)
-    base = {k: plain(config[k]) for k in ("chapter5", "data", "geometry", "model", "models", "seed")}
-    thesis = thesis_with_text(config["data"]["thesis_dir"], model_name)
+    return variants
+
+
+def _attribution_runs(config: Mapping, variants: Mapping, sections: Sequence[str], run_variant
+                      ) -> tuple[list[pd.DataFrame], dict]:
+    """For each variant: the config with its changes (validated, defaults filled), then ``run_variant(cfg)``, a
+    members table; a variant whose changed input makes no model / data set is 'not evaluated' with the reason."""
+    import json
+
+    from neckstrength.config import ConfigError, plain, validate_config
+    from neckstrength.errors import DataValidationError
+    from neckstrength.reruns.attribution import apply_variant
+
+    base = {k: plain(config[k]) for k in sections}
     frames, failed = [], {}
     for name, changes in variants.items():
         try:
-            cfg = validate_config(apply_variant(base, name, changes),
-                                  source=f"reruns.attribution.variants.{name}")
+            cfg = validate_config(apply_variant(base, name, changes), source=f"reruns.attribution.variants.{name}")
         except KeyError as e:
             raise ConfigError(f"reruns.attribution.variants.{name}", [str(e).strip("'\"")]) from None
         t0 = time.time()
-        c = cfg["chapter5"]
-        runs = []
         try:
-            model = model_from_config(full_model_from_config(cfg), cfg, model_name)
-            d = build_directions(cfg)
-            for ds in c["datasets"]:
-                data = dataset_from_config(cfg, "chapter5", model, d, ds)
-                stream, _ = member_stream(cfg["seed"], "chapter5", model_name, ds, 0)
-                m = algorithm4_member(model, data, abc_settings(cfg, model_name), c["bootstrap_direction"],
-                                      np.random.default_rng(stream))
-                m.insert(0, "member", 0)
-                m.insert(0, "dataset", ds)
-                m.insert(0, "model", model_name)
-                runs.append(m)
+            members = run_variant(cfg)
         except (DataValidationError, ValueError) as e:  # the changed input makes no model / data set: say why
             if name == "baseline":
                 raise
             failed[name] = f"not evaluated: {type(e).__name__}: {e}"
             print(f"variant {name} {json.dumps(changes)}: {failed[name]}", flush=True)
             continue
-        b = band_table(pd.concat(runs, ignore_index=True), thesis, float(config["reruns"]["level"]))
-        b.insert(0, "variant", name)
-        frames.append(b)
+        frames.append(members.assign(variant=name))
         print(f"variant {name} {json.dumps(changes)}: {time.time() - t0:.1f} s", flush=True)
-    bands = pd.concat(frames, ignore_index=True)
-    items, summary = attribution_summary(bands, {k: json.dumps(v) for k, v in variants.items()})
+    return frames, failed
+
+
+def _write_attribution(config: Mapping, variants: Mapping, frames: Sequence[pd.DataFrame], failed: Mapping,
+                       thesis: pd.DataFrame, out_runs, out_summary, hdr0: str) -> pd.DataFrame:
+    import json
+
+    from neckstrength.report.scorecard.distribution import attribution_summary
+
+    level = float(config["reruns"]["level"])
+    bands = []
+    for f in frames:
+        b = band_table(f.drop(columns=["variant"]), thesis, level)
+        b.insert(0, "variant", f["variant"].iloc[0])
+        bands.append(b)
+    items, summary = attribution_summary(pd.concat(bands, ignore_index=True),
+                                         {k: json.dumps(v) for k, v in variants.items()})
     summary = pd.concat([summary, pd.DataFrame([{"variant": k, "changes": json.dumps(variants[k]), "note": why}
                                                 for k, why in failed.items()])], ignore_index=True)
     summary = summary.set_index("variant").loc[list(variants)].reset_index()   # config order
-    hdr = [f"Chapter 5 ({CHAPTER_TABLES['chapter5'][model_name]}, {model_name}) rerun with one input changed at a time "
-           "(reruns.attribution.variants); Algorithm 4 draws nothing at random, so one run per variant and data set "
-           "is its whole distribution",
-           "on_print = within half a unit of the printed digit; within_tolerance = the scorecard's 'matches' test "
-           "(f_c max(0.5 N, 10 %), sigma_c 0.05, D(f_c) 0.01, iterations max(1, 20 %)); moved_onto / moved_off = "
-           f"items within tolerance with the change and not at baseline / the reverse; seed {config['seed']}"]
+    hdr = [hdr0,
+           "ours = the members' median; on_print = within half a unit of the printed digit; inside_band = inside our "
+           f"central {level:.0%} band widened by half a printed unit; within_tolerance = the scorecard's 'matches' "
+           "test (f_c max(0.5 N, 10 %), sigma_c 0.05, v_c max(0.5 N^2, 21 %), D(f_c) 0.01, iterations max(1, 20 %)); "
+           "moved_onto / moved_off = items within tolerance with the change and not at baseline / the reverse; "
+           f"seed {config['seed']}"]
     atomic_write_csv(items, out_runs, hdr, float_format="%.5g")
     atomic_write_csv(summary, out_summary, hdr, float_format="%.4g")
     print(summary.drop(columns=["moved_onto_items"]).to_string(index=False))
     return summary
+
+
+def reruns_attribution(config: Mapping, model_name: str, out_runs, out_summary) -> pd.DataFrame:
+    """Chapter 5 rerun with one input changed at a time (``reruns.attribution.variants``): per variant and data
+    set one Algorithm 4 run (it draws nothing at random, so one run is its whole distribution), each printed cell
+    beside it, and per variant the items the change moves onto the thesis's value."""
+    from neckstrength.config import build_directions
+
+    variants = _variants(config, config["reruns"]["attribution"])
+
+    def run(cfg):
+        c = cfg["chapter5"]
+        model = model_from_config(full_model_from_config(cfg), cfg, model_name)
+        d = build_directions(cfg)
+        runs = []
+        for ds in c["datasets"]:
+            data = dataset_from_config(cfg, "chapter5", model, d, ds)
+            stream, _ = member_stream(cfg["seed"], "chapter5", model_name, ds, 0)
+            m = algorithm4_member(model, data, abc_settings(cfg, model_name), c["bootstrap_direction"],
+                                  np.random.default_rng(stream))
+            m.insert(0, "member", 0)
+            m.insert(0, "dataset", ds)
+            m.insert(0, "model", model_name)
+            runs.append(m)
+        return pd.concat(runs, ignore_index=True)
+
+    frames, failed = _attribution_runs(config, variants, ("chapter5", "data", "geometry", "model", "models", "seed"),
+                                       run)
+    return _write_attribution(
+        config, variants, frames, failed, thesis_with_text(config["data"]["thesis_dir"], model_name), out_runs,
+        out_summary,
+        f"Chapter 5 ({CHAPTER_TABLES['chapter5'][model_name]}, {model_name}) rerun with one input changed at a time "
+        "(reruns.attribution.variants); Algorithm 4 draws nothing at random, so one run per variant and data set "
+        "is its whole distribution")
+
+
+def reruns_attribution_chapter6(config: Mapping, model_name: str, out_runs, out_summary) -> pd.DataFrame:
+    """Table 6.1 rerun with one input changed at a time (``reruns.attribution.chapter6``): per variant and data set
+    K members of Table 6.1's posterior (``members``; its candidates are drawn at random, so each variant gets its
+    own distribution), each printed cell beside their band, and per variant the items the change moves onto the
+    thesis's value."""
+    from neckstrength.config import build_directions
+
+    a6 = config["reruns"]["attribution"]["chapter6"]
+    variants = _variants(config, a6)
+    K = int(a6["members"])
+    n_cand = config["reruns"]["chapter6"].get("n_candidates")
+
+    def run(cfg):
+        model = model_from_config(full_model_from_config(cfg), cfg, model_name)
+        d = build_directions(cfg)
+        settings = chapter6_settings(cfg, model_name, **({} if n_cand is None else {"n_candidates": int(n_cand)}))
+        runs = []
+        for ds in a6["datasets"]:
+            data = chapter6_dataset(model, d, ds, cfg)
+            for k in range(K):
+                stream, _ = member_stream(cfg["seed"], "chapter6", model_name, ds, k)
+                m = sequential_member(model, data, settings, stream)
+                m.insert(0, "member", k)
+                m.insert(0, "dataset", ds)
+                m.insert(0, "model", model_name)
+                runs.append(m)
+        return pd.concat(runs, ignore_index=True)
+
+    frames, failed = _attribution_runs(
+        config, variants, ("chapter5", "chapter6", "data", "geometry", "model", "models", "seed"), run)
+    return _write_attribution(
+        config, variants, frames, failed,
+        thesis_with_text(config["data"]["thesis_dir"], model_name, config["chapter6"]["thesis_table"]), out_runs,
+        out_summary,
+        f"Table 6.1 ({model_name}) rerun with one input changed at a time (reruns.attribution.chapter6.variants); "
+        f"K = {K} members per variant and data set (the same random streams in every variant: member 0 = the "
+        "pipeline's own run)")

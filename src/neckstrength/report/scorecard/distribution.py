@@ -139,8 +139,9 @@ def group_spread(bands: pd.DataFrame) -> pd.DataFrame:
 
 def within_tolerance(quantity: str, thesis: float, ours: float, censored: bool = False,
                      tols: Mapping | None = None) -> bool:
-    """The scorecard's 'matches' test of one Chapter 5 value (:data:`TOLERANCES`: f_c max(0.5 N, 10 %), sigma_c
-    0.05, D(f_c) 0.01, iterations max(1, 20 %); a censored count matches a run that reached the cap)."""
+    """The scorecard's 'matches' test of one Chapter 5 / 6 value (:data:`TOLERANCES`: f_c max(0.5 N, 10 %), sigma_c
+    0.05, v_c max(0.5 N^2, 21 %) (the f_c tolerance squared), D(f_c) 0.01, iterations max(1, 20 %); a censored
+    count matches a run that reached the cap)."""
     from neckstrength.report.scorecard.tolerances import TOLERANCES
 
     t = tols or TOLERANCES
@@ -151,6 +152,8 @@ def within_tolerance(quantity: str, thesis: float, ours: float, censored: bool =
         return d <= max(0.5, t["estimate_rel"].value * abs(thesis))
     if quantity == "sigma_c":
         return d <= t["sigma_c_abs"].value
+    if quantity == "v_c":
+        return d <= max(0.5, ((1 + t["estimate_rel"].value) ** 2 - 1) * abs(thesis))
     if quantity == "D_fc":
         return d <= t["D_fc_abs"].value
     if quantity == "iters":
@@ -158,19 +161,24 @@ def within_tolerance(quantity: str, thesis: float, ours: float, censored: bool =
     return d <= t["estimate_rel"].value * abs(thesis)
 
 
-ATTRIBUTION_COLUMNS = ["variant", "changes", "items", "on_print", "within_tolerance", "moved_onto", "moved_off",
-                       "median_abs_rel_diff_f_c", "moved_onto_items", "note"]
+ATTRIBUTION_COLUMNS = ["variant", "changes", "items", "members", "on_print", "inside_band", "within_tolerance",
+                       "moved_onto", "moved_off", "median_abs_rel_diff_f_c", "moved_onto_items", "note"]
 
 
 def attribution_summary(runs: pd.DataFrame, changes: Mapping[str, str], baseline: str = "baseline"
                         ) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Per variant (one run each; a band table per variant with a ``variant`` column, as
-    :func:`neckstrength.reruns.bands.band_table` writes it): how many printed items our value meets on the print
-    (within half a printed unit) and within the scorecard's tolerance, and which items the change moved onto the
-    thesis's value (within tolerance now, not at ``baseline``) or off it. Returns (per item, per variant)."""
+    """Per variant (a band table per variant with a ``variant`` column, as :func:`neckstrength.reruns.bands.band_table`
+    writes it; one member each for Algorithm 4, K for Table 6.1): how many printed items our value (the members'
+    median) meets on the print (within half a printed unit), inside our central band widened by half a printed unit
+    (the run-to-run verdict "consistent with our implementation") and within the scorecard's tolerance, and which
+    items the change moved onto the thesis's value (within tolerance now, not at ``baseline``) or off it. Returns
+    (per item, per variant)."""
     r = runs.copy()
     r["ours"] = r["median"]
     r["on_print"] = (r["ours"] - r["thesis"]).abs() <= r["printed_half_unit"] + 1e-12
+    r["inside_band"] = _inside(r["thesis"].to_numpy(float), r["band_low"].to_numpy(float),
+                               r["band_high"].to_numpy(float), r["printed_half_unit"].to_numpy(float),
+                               r["censored"].to_numpy(bool))
     r["within_tolerance"] = [within_tolerance(q, t, o, c) for q, t, o, c in
                              zip(r["quantity"], r["thesis"], r["ours"], r["censored"])]
     r["item"] = [f"{m} " + _item(x) for m, x in zip(r["model"], r.to_dict("records"))]
@@ -184,10 +192,11 @@ def attribution_summary(runs: pd.DataFrame, changes: Mapping[str, str], baseline
         f = sub[sub["quantity"] == "f_c"]
         rel = ((f["ours"] - f["thesis"]).abs() / f["thesis"].abs()).median() if len(f) else math.nan
         rows.append({"variant": v, "changes": changes.get(v, ""), "items": len(sub),
-                     "on_print": int(sub["on_print"].sum()),
+                     "members": int(sub["members"].max()), "on_print": int(sub["on_print"].sum()),
+                     "inside_band": int(sub["inside_band"].sum()),
                      "within_tolerance": int(sub["within_tolerance"].sum()), "moved_onto": len(onto),
                      "moved_off": len(off), "median_abs_rel_diff_f_c": rel, "moved_onto_items": "; ".join(onto),
                      "note": ""})
-    cols = ["variant", "item", "model", "dataset", "quantity", "group", "thesis_text", "ours", "on_print",
-            "within_tolerance"]
+    cols = ["variant", "item", "model", "dataset", "quantity", "group", "thesis_text", "ours", "band_low", "band_high",
+            "members", "on_print", "inside_band", "within_tolerance"]
     return r[cols].reset_index(drop=True), pd.DataFrame(rows, columns=ATTRIBUTION_COLUMNS)
