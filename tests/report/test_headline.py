@@ -108,6 +108,31 @@ def test_cli_check_fails_when_readme_and_summary_disagree(tmp_path, capsys):
         hl.main(["--summary", str(summary), "--config", CI_CONFIG, "--date", "27.11.2026"])
 
 
+def test_keep_writes_provenance_and_the_row_takes_its_date(tmp_path):
+    """--keep copies a summary with its provenance; the row then dates the part by it; a kept copy of another config
+    is refused, and --keep does not overwrite a file it did not make without --force."""
+    summary = tmp_path / "scorecard_summary.csv"
+    _pinned_summary().to_csv(summary, index=False)
+    kept = tmp_path / "kept.csv"
+    assert hl.main(["--summary", str(summary), "--config", CI_CONFIG, "--keep", str(kept), "--date", "2026-01-02",
+                    "--commit", "abc1234", "--command", "snakemake -c2 --configfile config/config.ci.yaml"]) == 0
+    prov = hl.provenance(kept)
+    assert prov == {"date": "2026-01-02", "commit": "abc1234", "config": CI_CONFIG,
+                    "command": "snakemake -c2 --configfile config/config.ci.yaml"}
+    pd.testing.assert_frame_equal(hl.read_summary(kept), _pinned_summary())
+    readme = tmp_path / "README.md"
+    readme.write_text(f"| {hl.QUESTION} | old | x |\n")
+    assert hl.main(["--summary", str(kept), "--config", CI_CONFIG, "--readme", str(readme), "--write"]) == 0
+    assert hl.row_sources(hl.readme_row(readme.read_text())) == [(CI_CONFIG, "2026-01-02")]
+    with pytest.raises(SystemExit):                      # the kept copy names its config
+        hl.main(["--summary", str(kept), "--config", "config/config.yaml"])
+    other = tmp_path / "notes.csv"
+    other.write_text("mine\n")
+    with pytest.raises(SystemExit):                      # not a kept summary: refused without --force
+        hl.main(["--summary", str(summary), "--config", CI_CONFIG, "--keep", str(other), "--commit", "abc1234"])
+    assert other.read_text() == "mine\n"
+
+
 # --------------------------------------------------------------------------- the reduced pipeline
 
 @pytest.fixture(scope="module")
