@@ -6,6 +6,7 @@ CPU and wall seconds per member (CPU time is the guide on a shared machine), and
 same run, one p2m7 'norm' member of Algorithm 4 (every row's ratio is against it, so rows from loaded and quiet
 machines compare).
 Usage: .venv/bin/python benchmarks/bench_reruns.py [--models p2m7 p3m12 s3m24] [--chapter6] [--datasets ...]
+       [--identical N]   (members 0 and 1 of Algorithm 4 for N iterations: bit-identical or not)
 """
 
 import argparse
@@ -25,6 +26,9 @@ def main():
     ap.add_argument("--models", nargs="*", default=["p2m7", "p3m12", "s3m24"])
     ap.add_argument("--datasets", nargs="+", default=None, help="Chapter 5 data sets (default: chapter5.datasets)")
     ap.add_argument("--chapter6", action="store_true", help="also one Table 6.1 member per data set (p2m7)")
+    ap.add_argument("--identical", type=int, metavar="N", default=0,
+                    help="instead: run members 0 and 1 of Algorithm 4 for N iterations per model on each data set and "
+                         "print whether they are bit-identical (it draws nothing at random)")
     a = ap.parse_args()
     cfg = load_config(a.config)
     full = full_model_from_config(cfg)
@@ -39,6 +43,23 @@ def main():
         m = algorithm4_member(model, data, abc_settings(cfg, model_name), c["bootstrap_direction"],
                               np.random.default_rng(stream))
         return time.process_time() - c0, time.time() - t0, int(m.loc[m["quantity"] == "iters", "value"].iloc[0])
+
+    if a.identical:
+        import dataclasses
+
+        print("model, dataset, iterations, members 0 and 1 identical, CPU seconds of the two")
+        for model_name in a.models:
+            model = model_from_config(full, cfg, model_name)
+            st = dataclasses.replace(abc_settings(cfg, model_name), max_iter=a.identical)
+            for ds in a.datasets or c["datasets"]:
+                data = dataset_from_config(cfg, "chapter5", model, d, ds)
+                c0 = time.process_time()
+                out = [algorithm4_member(model, data, st, c["bootstrap_direction"],
+                                         np.random.default_rng(member_stream(cfg["seed"], "chapter5", model_name, ds,
+                                                                             k)[0])) for k in (0, 1)]
+                same = out[0]["value"].tolist() == out[1]["value"].tolist()
+                print(f"{model_name}, {ds}, {a.identical}, {same}, {time.process_time() - c0:.1f}", flush=True)
+        return
 
     alg4("p2m7", "norm")  # warm-up (imports, first solves)
     ref, ref_wall, _ = alg4("p2m7", "norm")
