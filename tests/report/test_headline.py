@@ -3,7 +3,10 @@
 ``test_reduced_scorecard_counts_are_pinned`` compares the reduced pipeline's ``scorecard_summary.csv`` (the session
 fixture ``ci_pipeline`` in tests/conftest.py) with :data:`CI_COUNTS`, so any change to what is scored, how it is
 classified or how it is judged shows up here. ``test_readme_row_agrees_with_the_reduced_summary`` regenerates the
-README row's reduced-config part from that summary. The other tests are fast (no pipeline).
+README row's reduced-config part from that summary; ``test_readme_full_config_part_is_generated_from_the_kept_summary``
+does the same for the full-config part from the kept copy of the full config's summary (``docs/scorecard_summary_full.csv``,
+written by ``python -m neckstrength.report.headline --config config/config.yaml --keep docs/scorecard_summary_full.csv``
+after ``bash run.sh``). The other tests are fast (no pipeline).
 
 To update after an intended change: run ``snakemake -c2 --configfile config/config.ci.yaml``, copy the rows of
 ``results/report/scorecard_summary.csv`` into :data:`CI_COUNTS`, then write the README row from that summary with
@@ -21,6 +24,7 @@ from neckstrength.report.scorecard import BY_CONSTRUCTION, CALIBRATED, INDEPENDE
 
 ROOT = Path(__file__).resolve().parents[2]
 CI_CONFIG = "config/config.ci.yaml"
+FULL_CONFIG = "config/config.yaml"
 
 # Reduced config (config/config.ci.yaml, seed 20261123): (chapter, kind) -> items, matches, same conclusion,
 # differs, not evaluated. Measured 2026-11-27.
@@ -106,6 +110,23 @@ def test_cli_check_fails_when_readme_and_summary_disagree(tmp_path, capsys):
     assert text.startswith("# x\n") and "| old |" not in text and "456 independent items" in text
     with pytest.raises(SystemExit):
         hl.main(["--summary", str(summary), "--config", CI_CONFIG, "--date", "27.11.2026"])
+
+
+def test_readme_full_config_part_is_generated_from_the_kept_summary():
+    """The README's full-config part is exactly what the generator writes from the kept copy of the full config's
+    summary (docs/scorecard_summary_full.csv, with its provenance); without a kept copy the README may not quote the
+    full config at all."""
+    row = _readme_row()
+    full = [d for c, d in hl.row_sources(row) if c == FULL_CONFIG]
+    kept = ROOT / hl.FULL_SUMMARY
+    if not kept.exists():
+        assert not full, f"the README quotes {FULL_CONFIG} but {hl.FULL_SUMMARY} (its kept summary) is missing"
+        return
+    prov = hl.provenance(kept)
+    assert prov and prov["config"] == FULL_CONFIG, f"{hl.FULL_SUMMARY}: no provenance line for {FULL_CONFIG}"
+    part = hl.answer_part(hl.Run(hl.read_summary(kept), FULL_CONFIG, prov["date"]))
+    assert full == [prov["date"]] and part in row, (
+        f"README row differs from {hl.FULL_SUMMARY}:\n  README: {row}\n  summary: {part}")
 
 
 def test_keep_writes_provenance_and_the_row_takes_its_date(tmp_path):
