@@ -45,9 +45,8 @@ def main():
         f0, _ = bootstrap_prior(model, data, c["bootstrap_direction"])
         settings = SMCSettings(n_particles=n_part, budget=budget, prior_sigma=c["smc"]["prior_sigma"],
                                quantile=c["smc"]["quantile"], epsilon=c["epsilon"])
-        seed = int(seed_sequence(cfg["seed"], f"crosscheck/{case}").generate_state(1)[0])
         t0 = time.time()
-        df = compare(model, data, f0, settings, seed)
+        df = compare(model, data, f0, settings, seed_sequence(cfg["seed"], f"crosscheck/{case}"))
         tag = case.replace("/", "_")
         df.to_csv(out / f"{tag}_particles.csv", index=False)
         tab = comparison_table(df)

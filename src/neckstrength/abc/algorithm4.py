@@ -145,7 +145,8 @@ def estimate_strengths(model: ReducedModel, data: Dataset, settings: ABCSettings
                        chunk: int = 65536, n_threads: int = 1) -> ABCResult:
     """Run Algorithm 4 from the prior point estimate ``f0`` (model muscles).
 
-    ``rng`` only subsamples the candidates stored for plotting (the algorithm itself is deterministic).
+    ``rng`` only subsamples the candidates stored for plotting (the algorithm itself is deterministic); without it
+    the stored candidates are evenly spaced over each iteration's draws (no random stream).
     ``checkpoint``: a .npz file written after every iteration; a later call with identical inputs
     resumes from it (an interrupted run loses at most one iteration).
     """
@@ -154,7 +155,6 @@ def estimate_strengths(model: ReducedModel, data: Dataset, settings: ABCSettings
     except ImportError:  # pragma: no cover - reference solver only
         BasisCache = lambda: None  # noqa: E731
 
-    rng = rng or np.random.default_rng(0)
     s = settings
     _THREADS["n"] = max(1, int(n_threads))  # directions solved in parallel threads (same results)
     pidx, pnames = free_parameters(model, s.tie_sides)
@@ -181,7 +181,9 @@ def estimate_strengths(model: ReducedModel, data: Dataset, settings: ABCSettings
             theta, sigma, start_iter = ck["theta"], ck["sigma"], int(ck["iteration"])
             tables = json.loads(str(ck["tables"]))
             hist_rows, score_rows, dk_rows, cand_rows = (tables[k] for k in ("hist", "score", "dk", "cand"))
-            rng.bit_generator.state = json.loads(str(ck["rng_state"]))
+            state = json.loads(str(ck["rng_state"]))
+            if rng is not None and state is not None:
+                rng.bit_generator.state = state
             d_sum = ck["d_sum"]
             if progress:
                 progress(f"[{model.name}/{data.name}] resuming after iteration {start_iter} from {checkpoint}")
@@ -226,7 +228,9 @@ def estimate_strengths(model: ReducedModel, data: Dataset, settings: ABCSettings
         counts_h, _ = np.histogram(D, bins=bins)
         dk_rows += [{"iteration": it, "bin_low": bins[b], "bin_high": bins[b + 1], "count": int(counts_h[b])}
                     for b in range(len(counts_h))]
-        keep = rng.choice(len(D), size=min(s.store_candidates, len(D)), replace=False)
+        n_keep = min(s.store_candidates, len(D))
+        keep = (rng.choice(len(D), size=n_keep, replace=False) if rng is not None
+                else np.unique(np.linspace(0, len(D) - 1, n_keep).round().astype(int)) if n_keep else np.arange(0))
         pct = 100.0 * (np.argsort(np.argsort(D)) + 0.5) / len(D)
         for k in keep:
             row = {"iteration": it, "D_k": float(D[k]), "percentile": float(pct[k])}
@@ -241,7 +245,7 @@ def estimate_strengths(model: ReducedModel, data: Dataset, settings: ABCSettings
                                 default=float)
             tmp = Path(str(checkpoint) + ".tmp.npz")
             np.savez(tmp, key=key, theta=theta, sigma=sigma, iteration=it, tables=tables, d_sum=d_sum,
-                     rng_state=json.dumps(rng.bit_generator.state))
+                     rng_state=json.dumps(rng.bit_generator.state if rng is not None else None))
             os.replace(tmp, checkpoint)
     # final point estimate and its fit (from a fresh cache, as after a resume)
     cache = BasisCache()

@@ -20,6 +20,7 @@ from neckstrength.abc.smc import SMCSettings, _distance, abc_smc
 from neckstrength.calibration.sbc import weighted_quantiles
 from neckstrength.estimation.datasets import Dataset
 from neckstrength.model.reduction import ReducedModel
+from neckstrength.seeds import generator, seed_numpy_global
 
 
 def pyabc_available() -> bool:
@@ -30,7 +31,8 @@ def pyabc_available() -> bool:
     return True
 
 
-def run_pyabc(model: ReducedModel, data: Dataset, f0: np.ndarray, settings: SMCSettings, seed: int,
+def run_pyabc(model: ReducedModel, data: Dataset, f0: np.ndarray, settings: SMCSettings,
+              stream: np.random.SeedSequence,
               db_dir: str | Path | None = None) -> dict:
     """pyABC ABC-SMC on ``data``; returns particles (strengths), weights, simulations used, generations, seconds."""
     import logging
@@ -54,7 +56,7 @@ def run_pyabc(model: ReducedModel, data: Dataset, f0: np.ndarray, settings: SMCS
     def distance(x, x0):  # the simulation already holds the distance to the observed data
         return x["d"]
 
-    np.random.seed(seed)
+    seed_numpy_global(stream)  # pyABC draws from numpy's global state
     abc = pyabc.ABCSMC(simulate, prior, distance, population_size=settings.n_particles,
                        sampler=pyabc.sampler.SingleCoreSampler(),
                        eps=pyabc.epsilon.QuantileEpsilon(alpha=settings.quantile))
@@ -73,20 +75,22 @@ def run_pyabc(model: ReducedModel, data: Dataset, f0: np.ndarray, settings: SMCS
             "tolerance": eps, "seconds": sec}
 
 
-def run_ours(model: ReducedModel, data: Dataset, f0: np.ndarray, settings: SMCSettings, seed: int) -> dict:
+def run_ours(model: ReducedModel, data: Dataset, f0: np.ndarray, settings: SMCSettings,
+             stream: np.random.SeedSequence) -> dict:
     t0 = time.time()
-    res = abc_smc(model, data, f0, settings, np.random.default_rng(seed))
+    res = abc_smc(model, data, f0, settings, generator(stream))
     sec = time.time() - t0
     g = res.generations
     return {"particles": res.particles, "weights": res.weights, "n_sim": int(res.n_simulations),
             "generations": int(len(g)), "tolerance": float(g["tolerance"].iloc[-1]), "seconds": sec}
 
 
-def compare(model: ReducedModel, data: Dataset, f0: np.ndarray, settings: SMCSettings, seed: int) -> pd.DataFrame:
-    """One row per sampler and muscle: posterior mean, 5-95% interval and width, truth, simulations used."""
+def compare(model: ReducedModel, data: Dataset, f0: np.ndarray, settings: SMCSettings,
+            stream: np.random.SeedSequence) -> pd.DataFrame:
+    """Both samplers on the stream ``stream`` (:func:`neckstrength.seeds.seed_sequence`). One row per sampler and muscle: posterior mean, 5-95% interval and width, truth, simulations used."""
     rows = []
     for sampler, fn in (("neckstrength abc_smc", run_ours), ("pyABC ABCSMC", run_pyabc)):
-        r = fn(model, data, f0, settings, seed)
+        r = fn(model, data, f0, settings, stream)
         mean = np.average(r["particles"], axis=0, weights=r["weights"])
         q = weighted_quantiles(r["particles"], r["weights"], (0.05, 0.95))
         for j, name in enumerate(model.muscle_names):

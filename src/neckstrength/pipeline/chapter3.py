@@ -22,6 +22,7 @@ from neckstrength.mfi.reliability import reliability_table
 from neckstrength.mfi.schema import read_mfi, validate_mfi_frame
 from neckstrength.mfi.synthetic import SYNTHETIC_LABEL, cell_parameters, load_targets, synthetic_cohort
 from neckstrength.mfi.tables import compare_with_thesis, data_source_text, read_thesis_statistics, table_3_2
+from neckstrength.seeds import derive_rng
 
 
 def _c3(config: Mapping) -> Mapping:
@@ -61,12 +62,12 @@ def chapter3_synthetic_cohort(config: Mapping, out_csv: str | Path, out_calibrat
     """Draw the SYNTHETIC cohort (seed = config 'seed') and write it with its calibration table."""
     spec = cohort_spec(config)
     targets = load_targets(config["data"]["thesis_dir"])
-    rng = np.random.default_rng(int(config["seed"]))
+    rng = derive_rng(int(config["seed"]), "chapter3/synthetic")
     df = synthetic_cohort(targets, spec, rng)
     validate_mfi_frame(df, out_csv)
     head = [f"{SYNTHETIC_LABEL} per-ROI MFI cohort: generated, NOT measured; not the thesis's participants",
             f"generator: neckstrength {__version__} neckstrength.mfi.synthetic; "
-            f"numpy default_rng(seed={config['seed']})",
+            f"seed {config['seed']}, stream 'chapter3/synthetic' (neckstrength.seeds: SeedSequence(seed))",
             f"calibrated to thesis Table 3.1 (demographics), Table 3.2 (mean/SD by group x level x quartile) and "
             f"the limits of agreement intra {tuple(spec.intra_loa)} / inter {tuple(spec.inter_loa)} (Sec. 3.4)",
             f"assumed (not in the thesis): covariate effects age {spec.age_per_year}/year, BMI {spec.bmi_per_unit}"

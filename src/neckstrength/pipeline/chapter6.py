@@ -59,6 +59,7 @@ from neckstrength.sequential.plots import (
     fig_radar_sagittal,
 )
 from neckstrength.wrench import solve
+from neckstrength.seeds import generator
 
 RUN_OUTPUTS = ("estimate", "iterations", "posteriors", "expected_dS", "orders", "order_summary", "subsets", "fit",
                "bins", "summary")
@@ -102,7 +103,7 @@ def chapter6_run(config: Mapping, model_name: str, dataset: str, directions_csv:
     ss_prior, ss_prop = _seeds(config, key)
     print(f"model {model_name}, data set {dataset}: {model.m} muscles, {len(data.directions)} directions; "
           f"f_0 = a f'_base with a = {a:.4f} (mean of {np.round(a_i, 4).tolist()}); settings {settings}", flush=True)
-    F = sample_prior(f0, settings.prior_sd_rel, settings.n_candidates, np.random.default_rng(ss_prior))
+    F = sample_prior(f0, settings.prior_sd_rel, settings.n_candidates, generator(ss_prior))
     bin_list = [settings.n_bins] + [int(b) for b in c.get("bins_sensitivity", []) if int(b) != settings.n_bins]
     grids = [StrengthGrid.around(f0, settings.prior_sd_rel, nb, settings.bin_range_sd) for nb in bin_list]
     sims = SimulatedSet.build(model, data.directions, data.U, F, grids, settings.n_wbins,
@@ -344,11 +345,11 @@ def chapter6_order_comparison(config: Mapping, directions_csv, out_csv: str | Pa
     rows = []
     for p_i, child in enumerate(ss.spawn(int(oc["n_participants"]))):
         s_truth, s_prior, s_prop = child.spawn(3)
-        rng = np.random.default_rng(s_truth)
+        rng = generator(s_truth)
         fa = sample_prior(oc.get("scale", 1.5) * model.strengths, oc.get("noise_sd_rel", 0.4), 1, rng)[0]
         data = simulated_dataset(model, d, f"P{p_i + 1}", fa, groups, c.get("simulated_emg_band", 0.05))
         f0, _, _ = scaled_baseline(model, data)
-        F = sample_prior(f0, base_settings.prior_sd_rel, base_settings.n_candidates, np.random.default_rng(s_prior))
+        F = sample_prior(f0, base_settings.prior_sd_rel, base_settings.n_candidates, generator(s_prior))
         grid = StrengthGrid.around(f0, base_settings.prior_sd_rel, base_settings.n_bins, base_settings.bin_range_sd)
         sim, = SimulatedSet.build(model, data.directions, data.U, F, [grid], base_settings.n_wbins)
         res = {}
@@ -446,7 +447,7 @@ def chapter6_criteria(config: Mapping, model_name: str, directions_csv, out_tabl
     t_start = time.time()
     for p_i, child in enumerate(ss.spawn(int(cc["n_participants"]))):
         s_truth, s_cand, s_prop, s_thesis = child.spawn(4)
-        rng = np.random.default_rng(s_truth)
+        rng = generator(s_truth)
         f_scale = cc.get("scale", 1.5) * model.strengths          # the recipe's centre: error scale per muscle
         fa = sample_prior(f_scale, cc.get("noise_sd_rel", 0.4), 1, rng)[0]
         try:
@@ -457,20 +458,20 @@ def chapter6_criteria(config: Mapping, model_name: str, directions_csv, out_tabl
         f0, _, _ = scaled_baseline(model, data)
         measure = measure_from(data)
         runs = [(crit, crit, None) for crit in criteria]
-        prop_rngs = {crit: np.random.default_rng(s_prop) for crit in criteria}
+        prop_rngs = {crit: generator(s_prop) for crit in criteria}
         for r in range(n_random):
             runs.append(("random", f"random #{r + 1}", None))
         if thesis:
-            F = sample_prior(f0, th_settings.prior_sd_rel, th_settings.n_candidates, np.random.default_rng(s_thesis))
+            F = sample_prior(f0, th_settings.prior_sd_rel, th_settings.n_candidates, generator(s_thesis))
             grid = StrengthGrid.around(f0, th_settings.prior_sd_rel, th_settings.n_bins, th_settings.bin_range_sd)
             sim, = SimulatedSet.build(model, data.directions, data.U, F, [grid], th_settings.n_wbins, cache=cache)
             state = SequentialState(model, sim, data.force_scale, th_settings)
-            run_sequence(state, measure, np.random.default_rng(s_thesis), n_max=n_max)
+            run_sequence(state, measure, generator(s_thesis), n_max=n_max)
             runs.append(("thesis (Alg. 7-9)", "thesis (Alg. 7-9)", state.tested))
-        rnd = np.random.default_rng(s_prop.spawn(1)[0])
+        rnd = generator(s_prop.spawn(1)[0])
         for crit, label, order in runs:
             post = JointPosterior(model, data.directions, data.U, data.force_scale, f0, settings,
-                                  np.random.default_rng(s_cand), cache=cache)
+                                  generator(s_cand), cache=cache)
             it = run_joint(post, measure, crit if order is None else "fixed order",
                            prop_rngs.get(crit, rnd), order=order, f_true=fa, n_max=n_max)
             g = it.groupby("iteration", sort=True)

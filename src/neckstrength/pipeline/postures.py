@@ -19,7 +19,7 @@ from neckstrength.postures.compare import ComparisonSettings, compare_postures, 
 from neckstrength.postures.datasets import posture_dataset, posture_grid
 from neckstrength.postures.model import build_posture_set
 from neckstrength.postures.tables import check_posture_tables, load_posture_tables, provenance
-from neckstrength.seeds import seed_sequence
+from neckstrength.seeds import derive_rng, seed_sequence
 
 
 def _print(s: str) -> None:
@@ -116,7 +116,7 @@ def postures_compare(config: Mapping, model_name: str, directions_csv, out_group
     # ABC-SMC on mixed tests: the first deficit participant, every test vs the neutral tests only, equal budget
     sm = pc["smc"]
     grid = posture_grid(pset, d)
-    rng = np.random.default_rng(seed_sequence(config["seed"], f"postures/smc/{model_name}"))
+    rng = derive_rng(config["seed"], f"postures/smc/{model_name}")
     from neckstrength.postures.compare import simulated_participants
 
     pid, cond, fa = simulated_participants(pset, pc["deep_extensor_groups"][model_name], s, rng)[0]
@@ -125,7 +125,7 @@ def postures_compare(config: Mapping, model_name: str, directions_csv, out_group
         data = posture_dataset(pset, grid, pid, fa, labels)
         res = abc_smc(pset, data, pset.strengths, SMCSettings(n_particles=int(sm["n_particles"]),
                                                               budget=int(sm["budget"])),
-                      np.random.default_rng(seed_sequence(config["seed"], f"postures/smc/{model_name}/{arm}")),
+                      derive_rng(config["seed"], f"postures/smc/{model_name}/{arm}"),
                       progress=_print)
         q = res.quantiles((0.05, 0.5, 0.95))
         mean = res.mean()

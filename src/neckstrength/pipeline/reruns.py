@@ -27,6 +27,7 @@ from neckstrength.pipeline.chapter6 import chapter6_dataset
 from neckstrength.pipeline.common import load_directions
 from neckstrength.reruns.bands import band_table
 from neckstrength.reruns.runs import algorithm4_member, member_stream, sequential_member
+from neckstrength.seeds import generator
 
 CHAPTER_TABLES = {"chapter5": {"p2m7": "Table 5.1", "p3m12": "Table 5.2", "s3m24": "Table 5.3"},
                   "chapter6": {"p2m7": "Table 6.1"}}
@@ -57,7 +58,7 @@ def reruns_members(config: Mapping, chapter: str, model_name: str, dataset: str,
         t0 = time.time()
         if chapter == "chapter5":
             m = algorithm4_member(model, data, settings, config["chapter5"]["bootstrap_direction"],
-                                  np.random.default_rng(stream))
+                                  generator(stream))
         else:
             m = sequential_member(model, data, settings, stream)
         dt = time.time() - t0
@@ -231,7 +232,7 @@ def reruns_attribution(config: Mapping, model_name: str, out_runs, out_summary) 
             data = dataset_from_config(cfg, "chapter5", model, d, ds)
             stream, _ = member_stream(cfg["seed"], "chapter5", model_name, ds, 0)
             m = algorithm4_member(model, data, abc_settings(cfg, model_name), c["bootstrap_direction"],
-                                  np.random.default_rng(stream))
+                                  generator(stream))
             m.insert(0, "member", 0)
             m.insert(0, "dataset", ds)
             m.insert(0, "model", model_name)

@@ -22,6 +22,7 @@ from neckstrength.postures.datasets import posture_dataset, posture_grid
 from neckstrength.postures.model import PostureSet
 from neckstrength.postures.sequential import PostureJointPosterior
 from neckstrength.sequential.joint import JointSettings
+from neckstrength.seeds import generator
 
 
 @dataclass(frozen=True)
@@ -68,8 +69,8 @@ def compare_postures(pset: PostureSet, directions: pd.DataFrame, deep_groups: Se
     rel_sd, p_below; per pick: participant, arm, t, test, posture)."""
     grid = posture_grid(pset, directions)
     s_truth, s_noise, s_runs = seed.spawn(3)
-    parts = simulated_participants(pset, deep_groups, s, np.random.default_rng(s_truth))
-    noise_rng = np.random.default_rng(s_noise)
+    parts = simulated_participants(pset, deep_groups, s, generator(s_truth))
+    noise_rng = generator(s_noise)
     deep = np.array([group_of(n) in set(deep_groups) for n in pset.muscle_names])
     rows, picks = [], []
     t_max = max(s.t_values)
@@ -86,8 +87,8 @@ def compare_postures(pset: PostureSet, directions: pd.DataFrame, deep_groups: Se
             U = g[[c for c in g.columns if c.startswith("u") and c[1:].isdigit()]].to_numpy(float)
             post = PostureJointPosterior(pset, list(g["label"]), U, g["force_scale"].to_numpy(float),
                                          list(g["posture"]), pset.strengths, settings,
-                                         np.random.default_rng(s_cand), change_cost=s.change_cost)
-            rng = np.random.default_rng(s_prop)
+                                         generator(s_cand), change_cost=s.change_cost)
+            rng = generator(s_prop)
             n = min(t_max, len(g))
             for t in range(1, n + 1):
                 label, _ = post.propose(s.criterion, rng)

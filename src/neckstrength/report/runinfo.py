@@ -23,12 +23,13 @@ import os
 import platform
 import sys
 import time
-import zlib
 from base64 import urlsafe_b64decode
 from pathlib import Path
 from typing import Iterable, Mapping
 
 import pandas as pd
+
+from neckstrength.seeds import STREAMS, describe
 
 RECORD_MARKER = "# neckstrength job record: "
 
@@ -242,18 +243,25 @@ def software_versions(packages: Iterable[str] = SOFTWARE) -> dict[str, str]:
 
 def seed_rows(seed: int | None, chapter3_synthetic: bool = True,
               chapter5_runs: Iterable[tuple[str, str]] = ()) -> list[dict]:
-    """Every seed the pipeline uses, derived from config 'seed' exactly as the stages derive them:
-    ``chapter3_synthetic`` (the Chapter 3 cohort is drawn: config ``chapter3.data`` unset), ``chapter5_runs`` the
-    (model, data set) pairs of Chapter 5 (config ``chapter5.models`` x ``chapter5.datasets``)."""
+    """Every seed the pipeline uses, derived from config 'seed' exactly as the stages derive them
+    (:mod:`neckstrength.seeds`): the seed, the Chapter 3 cohort's stream (``chapter3_synthetic``: the cohort is drawn,
+    config ``chapter3.data`` unset), the Chapter 5 runs' streams (``chapter5_runs``: (model, data set) pairs), then
+    one row per registered stream key (:data:`neckstrength.seeds.STREAMS`)."""
     rows = [{"kind": "seed", "name": "seed", "value": str(seed),
              "note": "config 'seed': recorded in every table header"}]
+
     if chapter3_synthetic:
-        rows.append({"kind": "seed", "name": "chapter3 SYNTHETIC cohort", "value": f"default_rng({seed})",
-                     "note": "neckstrength.pipeline.chapter3.chapter3_synthetic_cohort"})
+        rows.append({"kind": "seed", "name": "chapter3 SYNTHETIC cohort",
+                     "value": describe(seed, "chapter3/synthetic"),
+                     "note": "stream 'chapter3/synthetic' (neckstrength.pipeline.chapter3.chapter3_synthetic_cohort)"})
     for m, d in chapter5_runs:
-        rows.append({"kind": "seed", "name": f"chapter5 {m}/{d}",
-                     "value": f"default_rng([{seed}, {zlib.crc32(f'{m}/{d}'.encode())}])",
-                     "note": "crc32 of 'model/dataset' (neckstrength.pipeline.chapter5.chapter5_estimate)"})
+        rows.append({"kind": "seed", "name": f"chapter5 {m}/{d}", "value": describe(seed, f"{m}/{d}"),
+                     "note": "stream 'model/dataset' (neckstrength.pipeline.chapter5.chapter5_estimate)"})
+    for st in STREAMS:
+        rows.append({"kind": "stream", "name": " | ".join(repr(k) for k in st.keys),
+                     "value": ("SeedSequence(seed)" if st.root else "SeedSequence([seed, crc32(key)"
+                               + (f", {st.extra}" if st.extra else "") + "])"),
+                     "note": f"{st.what} ({st.by})"})
     return rows
 
 

@@ -27,6 +27,7 @@ from neckstrength.sequential.algorithms import (
     scaled_baseline,
 )
 from neckstrength.sequential.analysis import measure_from
+from neckstrength.seeds import generator
 
 @dataclass(frozen=True)
 class RerunSettings:
@@ -88,7 +89,7 @@ def sequential_member(model: ReducedModel, data: Dataset, settings: SequentialSe
     (Sec. 6.5.2), so Algorithm 9's order, which only orders the tests, is not run."""
     f0, _, _ = scaled_baseline(model, data)
     ss_prior = stream.spawn(2)[0]
-    F = sample_prior(f0, settings.prior_sd_rel, settings.n_candidates, np.random.default_rng(ss_prior))
+    F = sample_prior(f0, settings.prior_sd_rel, settings.n_candidates, generator(ss_prior))
     grid = StrengthGrid.around(f0, settings.prior_sd_rel, settings.n_bins, settings.bin_range_sd)
     sim = SimulatedSet.build(model, data.directions, data.U, F, [grid], settings.n_wbins)[0]
     state = SequentialState(model, sim, data.force_scale, settings)

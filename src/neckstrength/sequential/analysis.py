@@ -21,6 +21,7 @@ from neckstrength.sequential.algorithms import (
     run_sequence,
 )
 from neckstrength.sequential.orders import order_entropies, subset_table
+from neckstrength.seeds import generator
 
 
 def measure_from(data: Dataset):
@@ -36,7 +37,7 @@ def analyse(model, data: Dataset, sim: SimulatedSet, settings: SequentialSetting
              n_orders: int, order_seed, progress=None, alpha_cache: dict | None = None) -> dict:
     """Algorithm 7 with the entropy-reducing selection, then the order analysis from the per-test factors."""
     state = SequentialState(model, sim, data.force_scale, settings, alpha_cache=alpha_cache)
-    props, it = run_sequence(state, measure_from(data), np.random.default_rng(seed_propose), gamma, progress=progress)
+    props, it = run_sequence(state, measure_from(data), generator(seed_propose), gamma, progress=progress)
     K = sim.K
     order_sel = np.array([sim.directions.index(s.direction) for s in state.steps])
     loglik = np.zeros((K, sim.m, sim.grid.n_bins))
@@ -48,7 +49,7 @@ def analyse(model, data: Dataset, sim: SimulatedSet, settings: SequentialSetting
         subsets = subset_table(log_prior, loglik, sim.grid)
         orders, H = order_entropies(subsets["H"], K)
     else:  # sampled orders: entropies along each order's prefixes
-        rng = np.random.default_rng(order_seed)
+        rng = generator(order_seed)
         orders = np.array([rng.permutation(K) for _ in range(n_orders)] + [order_sel])
         H = np.zeros((len(orders), K + 1))
         H[:, 0] = pdf_entropy(sim.prior_pdf, sim.grid).mean()

@@ -43,6 +43,7 @@ from scipy.special import log_ndtr, ndtr, ndtri
 
 from neckstrength.model.reduction import ReducedModel
 from neckstrength.sequential.joint import JointPosterior, JointSettings
+from neckstrength.seeds import child_generators
 
 DECISIONS = ("deficit", "no deficit", "undecided", "model misfit")
 
@@ -322,9 +323,7 @@ class DeficitDecision:
                      noise_rel=settings.noise, resample_ess=settings.resample_ess, n_moves=settings.n_moves,
                      max_resamples=settings.max_resamples)
         self.joint = js
-        seeds = rng.bit_generator.seed_seq.spawn(2) if hasattr(rng.bit_generator, "seed_seq") else None
-        rngs = ([np.random.default_rng(s) for s in seeds] if seeds is not None
-                else [np.random.default_rng(rng.integers(2 ** 63)) for _ in range(2)])
+        rngs = child_generators(rng, 2)
         # with 2 threads or more the two samplers run side by side, each with its own basis cache (a cache is not
         # shared between threads) and half the threads; the numbers are the same (own random streams, exact solver)
         self.parallel = n_threads >= 2

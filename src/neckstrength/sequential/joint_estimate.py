@@ -23,6 +23,7 @@ from neckstrength.model.reduction import ReducedModel
 from neckstrength.sequential.algorithms import scaled_baseline
 from neckstrength.sequential.analysis import measure_from
 from neckstrength.sequential.joint import JointPosterior, JointSettings, run_joint
+from neckstrength.seeds import generator
 
 
 def _print(s: str) -> None:
@@ -62,8 +63,8 @@ def run_joint_estimate(model: ReducedModel, data: Dataset, settings: JointSettin
     for crit in criteria:
         t0 = time.time()
         post = JointPosterior(model, data.directions, data.U, data.force_scale, f0, settings,
-                              np.random.default_rng(ss_cand), progress=progress, cache=cache)
-        it = run_joint(post, measure, crit, np.random.default_rng(ss_prop), f_true=data.f_true, progress=progress)
+                              generator(ss_cand), progress=progress, cache=cache)
+        it = run_joint(post, measure, crit, generator(ss_prop), f_true=data.f_true, progress=progress)
         it.insert(0, "criterion", crit)
         parts.append(it)
         est = post.estimate()

@@ -30,6 +30,7 @@ from neckstrength.io import atomic_write_csv
 from neckstrength.trials.formats import CARDINAL, EMG_CHANNELS, WRENCH
 from neckstrength.trials.resolve import PAD_TO_C0_M, default_frames
 from neckstrength.wrench import solve
+from neckstrength.seeds import derive_rng
 
 #: s3m24 groups recorded by the Appendix A electrodes (model group -> EMG muscle name)
 EMG_GROUPS = {"SCM": "SCM", "trap": "trap", "semicap": "SSCap", "spcap": "SpCap", "levscap": "LS"}
@@ -58,7 +59,7 @@ def _perturb(u: np.ndarray, big: bool, rng: np.random.Generator, ratio_error: bo
     return w / np.linalg.norm(w)
 
 
-def generate_example(config: Mapping, seed: int = 20261123, participants=("P01", "P02", "P03"),
+def generate_example(config: Mapping, seed: int, participants=("P01", "P02", "P03"),
                      levels=(1.0, 0.75, 1.15), repeat_sd: float | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Trial table (the documented format) and the true strengths (s3m24 groups) of a synthetic lab.
 
@@ -66,7 +67,7 @@ def generate_example(config: Mapping, seed: int = 20261123, participants=("P01",
     ``exp(N(0, repeat_sd))`` (full effort, a known trial-to-trial log SD: tests of the repeat-noise estimate)."""
     from neckstrength.config import build_directions, full_model_from_config, model_from_config
 
-    rng = np.random.default_rng(seed)
+    rng = derive_rng(seed, "trials/example")
     model = model_from_config(full_model_from_config(config), config, "s3m24")
     d = build_directions(config)
     names = list(d["name"])
@@ -139,7 +140,7 @@ def generate_example(config: Mapping, seed: int = 20261123, participants=("P01",
     return pd.DataFrame(rows), pd.DataFrame(truth)
 
 
-def write_example(config: Mapping, out_dir: str | Path, seed: int = 20261123) -> dict[str, Path]:
+def write_example(config: Mapping, out_dir: str | Path, seed: int) -> dict[str, Path]:
     """Write ``trials.csv`` and ``true_strengths.csv`` (both labelled SYNTHETIC, with generator and seed)."""
     trials, truth = generate_example(config, seed)
     out = Path(out_dir)

@@ -51,6 +51,7 @@ import numpy as np
 
 from neckstrength.model.reduction import ReducedModel
 from neckstrength.wrench.problem import STATUS_CODES, _bounds, _DirectionLP
+from neckstrength.seeds import HASH_SEED, derive_rng
 
 try:  # the compiled dual simplex (numba); without it every cache miss goes to HiGHS
     from neckstrength.wrench import simplex as _simplex
@@ -183,7 +184,7 @@ _UPPER = int(highspy.HighsBasisStatus.kUpper)
 _HIGHS_LOCK = threading.Lock()
 
 
-_HASH_WEIGHTS = np.random.default_rng(20261123).integers(1, 2**62, size=4096, dtype=np.int64) | 1
+_HASH_WEIGHTS = derive_rng(HASH_SEED, "wrench/hash_weights").integers(1, 2**62, size=4096, dtype=np.int64) | 1
 
 
 _BLAS: dict = {}

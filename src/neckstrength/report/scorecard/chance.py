@@ -6,7 +6,6 @@ tolerance table that shows every tolerance beside its test.
 from __future__ import annotations
 
 import math
-import zlib
 from dataclasses import dataclass
 from typing import Callable, Mapping, Sequence
 
@@ -14,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from neckstrength.report.scorecard.tolerances import N_PERMUTATIONS, TOLERANCES, Tolerance
+from neckstrength.seeds import derive_rng
 
 
 def _ranks(x: np.ndarray, strata: np.ndarray) -> np.ndarray:
@@ -123,7 +123,7 @@ def chance_rates(rows: pd.DataFrame, seed: int = 0, n_permutations: int = N_PERM
         strata = pd.factorize(sub["_stratum"].astype(str))[0]
         groups = [np.flatnonzero(strata == k) for k in np.unique(strata)]
         observed = float(test.agree(t, o, aux, strata).mean())
-        rng = np.random.default_rng([int(seed), zlib.crc32(key.encode())])
+        rng = derive_rng(int(seed), key)  # key: the test's name (registered as '{test}')
         acc = 0.0
         for _ in range(n_permutations):
             acc += float(test.agree(t, _permute_within(o, groups, rng), aux, strata).mean())

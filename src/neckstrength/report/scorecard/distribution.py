@@ -19,13 +19,13 @@ is not reproducible by any implementation of the estimator, ours included.
 from __future__ import annotations
 
 import math
-import zlib
 from typing import Mapping
 
 import numpy as np
 import pandas as pd
 
 from neckstrength.report.scorecard.tolerances import N_PERMUTATIONS
+from neckstrength.seeds import derive_rng
 
 CONSISTENT = "consistent with our implementation"
 
@@ -74,7 +74,7 @@ def band_chance_rate(bands: pd.DataFrame, seed: int, n_permutations: int = N_PER
     cens = bands["censored"].to_numpy(bool)
     strata = pd.factorize(_strata(bands))[0]
     groups = [np.flatnonzero(strata == k) for k in np.unique(strata)]
-    rng = np.random.default_rng([int(seed), zlib.crc32(b"reruns/band_chance")])
+    rng = derive_rng(int(seed), "reruns/band_chance")
     acc = 0.0
     for _ in range(n_permutations):
         perm = np.arange(len(t))

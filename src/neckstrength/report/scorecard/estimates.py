@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import math
 import re
-import zlib
 from pathlib import Path
 from typing import Sequence
 
@@ -16,6 +15,7 @@ import pandas as pd
 
 from neckstrength.report.scorecard.rows import B_FILES, Context, _read, _row
 from neckstrength.report.scorecard.tolerances import BY_CONSTRUCTION, INDEPENDENT, N_PERMUTATIONS, _fmt, _num, _tol_text
+from neckstrength.seeds import derive_rng
 
 
 def _baseline(df: pd.DataFrame, ctx: Context, model: str | None, thesis_table: str | None) -> dict:
@@ -52,7 +52,7 @@ def _printed_group_strengths(ctx: Context, model: str | None) -> dict:
     return out
 
 
-def _spearman_perm(a: np.ndarray, b: np.ndarray, seed: int, n: int = N_PERMUTATIONS) -> tuple[float, float]:
+def _spearman_perm(a: np.ndarray, b: np.ndarray, rng: np.random.Generator, n: int = N_PERMUTATIONS) -> tuple[float, float]:
     """Spearman rank correlation and its one-sided permutation p-value (share of permutations at least as high)."""
     from scipy.stats import rankdata
 
@@ -61,7 +61,6 @@ def _spearman_perm(a: np.ndarray, b: np.ndarray, seed: int, n: int = N_PERMUTATI
     if len(a) < 3:
         return math.nan, math.nan
     rho = float(np.corrcoef(a, b)[0, 1])
-    rng = np.random.default_rng(seed)
     hits = sum(float(np.corrcoef(a, rng.permutation(b))[0, 1]) >= rho - 1e-12 for _ in range(n))
     return rho, (hits + 1) / (n + 1)
 
@@ -95,7 +94,7 @@ def _score_estimates(ctx: Context, chapter: str, source: str, model: str | None,
             ms = [m for (d, m) in fc if d == ds and m in f_base and f_base[m] > 0]
             a = np.array([fc[(ds, m)][0] / f_base[m] for m in ms])
             b = np.array([fc[(ds, m)][1] / f_base[m] for m in ms])
-            rho, p = _spearman_perm(a, b, seed + zlib.crc32(f"{ctx.rel}|{ds}".encode()) % 10_000)
+            rho, p = _spearman_perm(a, b, derive_rng(seed, f"scorecard/rank/{ctx.rel}|{ds}"))
             rank_text[ds] = f"; across the {len(ms)} groups of {ds}: Spearman rho {rho:.2f}, permutation p {p:.3f}"
         return rank_text[ds]
 
