@@ -375,7 +375,7 @@ def _cmd_app(args) -> int:
 
 
 def _cmd_diagnose(args) -> int:
-    from neckstrength.gap.run import DATASET_FILES, FIGURES
+    from neckstrength.gap.stage import DATASET_FILES, FIGURES
 
     from neckstrength.config import gap_measurements_path, gap_models
 
@@ -395,36 +395,45 @@ def _cmd_diagnose(args) -> int:
     return rc
 
 
-def _diagnose_into(args, cfg, model, out, outputs) -> int:
-    from neckstrength.config import (
-        build_directions,
-        diagnosis_settings,
-        discriminate_settings,
-        gap_blind_dataset,
-        gap_context,
-        gap_settings_text,
-        gap_withheld_activations,
-        head_from_config,
-        plane_bands,
-    )
-    from neckstrength.gap.run import run_diagnosis
-
+@contextlib.contextmanager
+def _stdout_to_stderr():
+    """Send file descriptor 1 to standard error for the block: HiGHS prints its start-up banner from C on the
+    process's standard output, where only the command's answer belongs."""
+    sys.stdout.flush()
     try:
-        directions = build_directions(cfg)
-        ctx = gap_context(cfg, model, directions)
-        data = gap_blind_dataset(cfg, ctx, directions, args.dataset, measurements=args.measurements)
-        settings = diagnosis_settings(cfg)
-        effects = tuple(e.strip() for e in (args.effects or "").split(",") if e.strip())
-        if effects:
-            settings = replace(settings, effects=effects)
-        s = run_diagnosis(ctx, data, settings, directions,
-                          gap_withheld_activations(cfg, ctx, args.dataset), outputs,
-                          gap_settings_text(cfg, settings), model, discriminate_settings(cfg),
-                          head_from_config(cfg), plane_bands(cfg), max(1, args.workers),
-                          extra_trials=args.extra_trials)
+        fd = sys.__stdout__.fileno()
+        saved = os.dup(fd)
+    except (AttributeError, OSError, ValueError):  # no real stdout (embedded): nothing to redirect
+        yield
+        return
+    try:
+        os.dup2(sys.__stderr__.fileno(), fd)
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, fd)
+        os.close(saved)
+
+
+def _diagnose_into(args, cfg, model, out, outputs) -> int:
+    from neckstrength.config import build_directions, diagnose_stage
+    from neckstrength.gap.stage import answer_lines, header_line, run_diagnose, write_diagnose
+
+    effects = tuple(e.strip() for e in (args.effects or "").split(",") if e.strip())
+    try:
+        with _stdout_to_stderr():  # progress and HiGHS's banner on stderr, the answer on stdout
+            settings, inputs = diagnose_stage(cfg, model, args.dataset, build_directions(cfg),
+                                              measurements=args.measurements, extra_trials=args.extra_trials,
+                                              effects=effects, workers=args.workers)
+            result = run_diagnose(settings, inputs, resume_dir=out / "resume")
+            write_diagnose(result, outputs)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    s = result.summary
+    print(header_line(inputs))
+    for line in answer_lines(result):
+        print(line)
     print(f"wrote {out}/report.md: where {s['worst_plane']} / {s['worst_component']}; which {s['chosen']}; "
           f"held-out gap {s['gap_before']:.3f} -> {s['gap_after']:.3f}")
     return 0

@@ -700,6 +700,29 @@ def gap_settings_text(config: Mapping, s: DiagnosisSettings) -> str:
                       f"- seed {config['seed']}"])
 
 
+def diagnose_stage(config: Mapping, model_name: str, dataset: str, directions: pd.DataFrame,
+                   measurements: str | Path | None = None, extra_trials: str | Path | None = None,
+                   effects: Sequence[str] = (), workers: int = 1):
+    """The diagnosis stage's settings and inputs (:class:`neckstrength.gap.stage.DiagnoseSettings`,
+    :class:`~neckstrength.gap.stage.DiagnoseInputs`): the rule ``gap_diagnose`` and ``neckstrength diagnose`` both
+    build them here, so both give the same answer. ``effects``: candidates instead of ``gap.effects``;
+    ``measurements``: a max-force table instead of the config's."""
+    from dataclasses import replace
+
+    from neckstrength.gap.stage import DiagnoseInputs, DiagnoseSettings
+
+    ctx = gap_context(config, model_name, directions)
+    data = gap_blind_dataset(config, ctx, directions, dataset, measurements=measurements)
+    s = diagnosis_settings(config)
+    if effects:
+        s = replace(s, effects=tuple(effects))
+    settings = DiagnoseSettings(s, discriminate_settings(config), max(1, int(workers)))
+    inputs = DiagnoseInputs(ctx, data, directions, gap_withheld_activations(config, ctx, dataset),
+                            gap_settings_text(config, s), model_name, head_from_config(config), plane_bands(config),
+                            extra_trials)
+    return settings, inputs
+
+
 def _protocols_text(s: DiagnosisSettings) -> str:
     p = s.protocols
     if p is None:

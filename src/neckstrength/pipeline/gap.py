@@ -14,21 +14,21 @@ from neckstrength.config import (
     benchmark_settings,
     calibration_settings,
     derive_rng,
+    diagnose_stage,
     diagnosis_settings,
-    discriminate_settings,
-    gap_blind_dataset,
     gap_context,
-    gap_settings_text,
-    gap_withheld_activations,
-    head_from_config,
 )
 from neckstrength.gap.benchmark import decision_settings, run_benchmark
 from neckstrength.gap.diagnose import DiagnosisSettings
 from neckstrength.gap.report import markdown_table
-from neckstrength.gap.run import run_diagnosis
+from neckstrength.gap.stage import answer_lines, header_line, run_diagnose, write_diagnose
 from neckstrength.gap.store import ResultStore
 from neckstrength.io import atomic_write_csv, atomic_write_text
 from neckstrength.pipeline.common import load_directions
+
+
+def _print(s: str) -> None:
+    print(s, flush=True)
 
 
 def gap_diagnose(config: Mapping, model_name: str, dataset: str, directions_csv: str | Path | pd.DataFrame,
@@ -36,12 +36,13 @@ def gap_diagnose(config: Mapping, model_name: str, dataset: str, directions_csv:
     """Diagnose one data set: tables, figures, report.md and summary.json (keys of ``outputs``); ``workers``:
     processes for the calibration's screen (the rule's threads)."""
     directions = directions_csv if isinstance(directions_csv, pd.DataFrame) else load_directions(directions_csv)
-    ctx = gap_context(config, model_name, directions)
-    data = gap_blind_dataset(config, ctx, directions, dataset)
-    s = diagnosis_settings(config)
-    return run_diagnosis(ctx, data, s, directions, gap_withheld_activations(config, ctx, dataset), outputs,
-                         gap_settings_text(config, s), model_name, discriminate_settings(config),
-                         head_from_config(config), config["geometry"]["plane_bands"], workers)
+    settings, inputs = diagnose_stage(config, model_name, dataset, directions, workers=workers)
+    _print(header_line(inputs))
+    result = run_diagnose(settings, inputs, resume_dir=Path(outputs["summary"]).parent / "resume", progress=_print)
+    write_diagnose(result, outputs)
+    for line in answer_lines(result):
+        _print(line)
+    return result.summary
 
 
 def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summaries: Sequence[str],
