@@ -1,12 +1,10 @@
 # Thin rule script: reads snakemake.input/output/params and calls the pipeline function of the same name.
-import sys
 
 from neckstrength.pipeline.chapter5 import chapter5_figures
-from neckstrength.pipeline.common import rule_settings
+from neckstrength.pipeline.common import rule_log, rule_settings
 from neckstrength.report.runinfo import install_job_record
 
 install_job_record()  # run time and peak memory into the job's log (report)
-with open(snakemake.log[0], "w") as log:
-    sys.stderr = sys.stdout = log
+with rule_log(snakemake):
     chapter5_figures(rule_settings(snakemake), snakemake.wildcards.model, snakemake.wildcards.dataset,
                       snakemake.input.directions, dict(snakemake.input.items()), dict(snakemake.output.items()))

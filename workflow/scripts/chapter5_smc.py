@@ -1,13 +1,11 @@
 # Thin rule script: reads snakemake.input/output/params and calls the pipeline function of the same name.
-import sys
 
 from neckstrength.pipeline.chapter5 import chapter5_smc
-from neckstrength.pipeline.common import rule_settings
+from neckstrength.pipeline.common import rule_log, rule_settings
 from neckstrength.report.runinfo import install_job_record
 
 install_job_record()  # run time and peak memory into the job's log (report)
-with open(snakemake.log[0], "w") as log:
-    sys.stderr = sys.stdout = log
+with rule_log(snakemake):
     i, o = snakemake.input, snakemake.output
     chapter5_smc(rule_settings(snakemake), snakemake.wildcards.model, snakemake.wildcards.dataset, i.directions,
                   i.estimate, i.summary, o.table, o.generations)

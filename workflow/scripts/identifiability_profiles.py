@@ -1,13 +1,11 @@
 # Thin rule script: reads snakemake.input/output/params and calls the pipeline function of the same name.
-import sys
 
-from neckstrength.pipeline.common import rule_settings
+from neckstrength.pipeline.common import rule_log, rule_settings
 from neckstrength.pipeline.identifiability import identifiability_profiles
 from neckstrength.report.runinfo import install_job_record
 
 install_job_record()  # run time and peak memory into the job's log (report)
-with open(snakemake.log[0], "w") as log:
-    sys.stderr = sys.stdout = log
+with rule_log(snakemake):
     o = snakemake.output
     identifiability_profiles(rule_settings(snakemake), snakemake.wildcards.named, snakemake.input.directions,
                              o.profiles, o.distinguishable, o.fig)

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import sys
+import traceback
 from pathlib import Path
 from typing import Mapping
 
@@ -24,3 +27,21 @@ def rule_settings(smk) -> Settings:
     as a read-only :class:`~neckstrength.config.Settings` view that refuses undeclared keys."""
     selected = getattr(smk.params, "settings", None) or {"keys": [], "values": {}}   # a rule that reads none
     return settings_view(selected, str(smk.rule))
+
+
+@contextlib.contextmanager
+def rule_log(smk):
+    """A rule script's standard output and error go to its log (``smk.log[0]``) for the block. A failure's traceback
+    is written to the log before it closes, then re-raised with the streams restored, so Snakemake shows it too
+    (assigning ``sys.stderr`` to a log closed by ``with open(...)`` lost it: "lost sys.stderr")."""
+    saved = sys.stdout, sys.stderr
+    with open(str(list(smk.log)[0]), "w") as log:
+        sys.stdout = sys.stderr = log
+        try:
+            yield log
+        except BaseException:
+            traceback.print_exc(file=log)
+            raise
+        finally:
+            log.flush()
+            sys.stdout, sys.stderr = saved
