@@ -102,7 +102,7 @@ def main(argv=None) -> dict:
     a = ap.parse_args(argv)
 
     from neckstrength.config import load_config
-    from neckstrength.gap.diagnose import BlindData, diagnose
+    from neckstrength.gap.diagnose import AIM_SCATTER, BlindData, diagnose
     from neckstrength.gap.scoring import case_row, confusion, score_cases
     from neckstrength.gap.truths import CaseSettings, TruthSetup, describe, generate_truth_cases
     from neckstrength.io import atomic_write_csv, atomic_write_text
@@ -126,7 +126,8 @@ def main(argv=None) -> dict:
     cases = generate_truth_cases(setup, cs, derive_rng(cfg["seed"], stream), limit=a.limit)
     ctx, ds, effects = settings_for(cfg, model, a.null_replicates, [c.repeats_row() for c in cases])
     design = {"model": model, "seed": cfg["seed"], "stream": stream, "cases": asdict(cs), "limit": a.limit,
-              "null_replicates": a.null_replicates, "effects": effects}
+              "null_replicates": a.null_replicates, "effects": effects,
+              "decision": "aim scatter (gap.scatter) after the calibrated choice, 2026-11-28"}
     dhash = hashlib.sha256(json.dumps(design, sort_keys=True).encode()).hexdigest()[:16]
     out.mkdir(parents=True, exist_ok=True)
     rows_path = out / "rows.jsonl"
@@ -180,7 +181,7 @@ def main(argv=None) -> dict:
         wall = time.perf_counter() - tb
         with rows_path.open("a") as fh:
             for c, d in zip(part, diags):
-                r = case_row(c.name, c.truth, c.target, effects, d.summary, d.effects)
+                r = case_row(c.name, c.truth, c.target, effects + [AIM_SCATTER], d.summary, d.effects)
                 r.update({"design": dhash, "commit": commit, "noise_true": c.noise, "noise_measured": c.noise_sd,
                           "truth_params": describe(c.truth, c.params), "batch_wall_s": wall,
                           "batch_cases": len(part)})

@@ -55,6 +55,7 @@ from neckstrength.gap.engine import (  # noqa: F401  (BlindData, DiagnosisSettin
 )
 from neckstrength.gap.fit import Simulator
 from neckstrength.gap.forked import fork_background
+from neckstrength.gap.scatter import ScatterSettings, direction_sensitivity, scatter_test
 from neckstrength.gap.store import batch_checkpoints
 from neckstrength.model.geometry import PLANE_GRID, WRENCH_COMPONENTS
 from neckstrength.seeds import derive_rng
@@ -628,6 +629,7 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
             "power": {r.effect: (None if not np.isfinite(r.min_detectable_share) else r.min_detectable_share)
                       for r in pws.itertuples()},
             "power_statements": [f"{r.effect}: {r.statement}" for r in pws.itertuples()]})
+        cal_summary.update(_aim_scatter(ctx, dat.name, fm, np.log1p(rcv[chosen]), chosen, bool(unexplained), s.seed))
         if s.protocols is not None:
             prot, adv, kappa = _protocol_advice(eng, cal, pws)
             cal_summary.update({"protocol_efficiency": kappa, "protocol_advice": [a["line"] for a in adv],
@@ -654,6 +656,34 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
     return DatasetDiagnosis(dat.name, resid, planes, comps, muscles, eff_tab, pd.DataFrame(srows), summary, acts,
                             pw, pws, calibration=cal, protocols=prot if cal is not None and s.protocols is not None
                             else pd.DataFrame())
+
+
+#: the name the decision gives a remainder explained by aiming scatter (:mod:`neckstrength.gap.scatter`)
+AIM_SCATTER = "direction_scatter"
+
+
+def _aim_scatter(ctx: GapContext, name: str, f_fit: np.ndarray, logres_chosen: np.ndarray, chosen: str,
+                 unexplained: bool, seed, settings: ScatterSettings = ScatterSettings()) -> dict:
+    """The aiming-scatter step of the decision (issue 32, item 1): where the calibrated choice leaves a remainder
+    that is not explained (its held-out gap above the noise-only replicates'), and that remainder's squared log
+    residuals grow with the tests' direction sensitivity (:func:`neckstrength.gap.scatter.scatter_test` at
+    ``settings.alpha``), the named cause is aiming scatter (``AIM_SCATTER``) instead of ``chosen``: a random
+    push direction per test, which no mean-changing candidate can explain. Under noise alone this adds at most
+    ``settings.alpha`` to the decision's false-alarm rate (the test's own level; the remainder condition only
+    lowers it)."""
+    d = ctx.directions
+    v = direction_sensitivity(ctx.model, f_fit, d[["px", "py", "pz"]].to_numpy(float),
+                              d[["nx", "ny", "nz"]].to_numpy(float), settings)
+    t = scatter_test(logres_chosen, v, derive_rng(seed, f"gap/scatter/{name}"), settings)
+    fire = bool(unexplained and np.isfinite(t["p"]) and t["p"] <= settings.alpha)
+    out = {"scatter_p": t["p"], "scatter_cone_deg": t["cone_deg"], "scatter_slope": t["slope"],
+           "scatter_alpha": settings.alpha, "scatter_named": fire}
+    if fire:
+        out.update({"named": AIM_SCATTER, "named_before_scatter": chosen,
+                    "decision": (f"aiming scatter (direction_scatter): the remainder after {chosen} is not explained "
+                                 f"and grows with the tests' direction sensitivity (p = {t['p']:.3g} <= "
+                                 f"{settings.alpha:g}; cone about {t['cone_deg']:.0f} deg, heuristic)")})
+    return out
 
 
 def _protocol_advice(eng: _Engine, cal, pws: pd.DataFrame):

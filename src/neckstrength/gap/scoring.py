@@ -58,7 +58,10 @@ def case_row(name: str, truth: str, target: str, candidates: Iterable[str], summ
             "gap_over_noise": float(summary.get("gap_over_noise", np.nan)),
             "remainder": ("consistent with noise" if consistent else "not explained"
                           if summary.get("remainder_unexplained") else "not testable"),
-            "consistent_with_noise": consistent}
+            "consistent_with_noise": consistent,
+            "named_before_scatter": str(summary.get("named_before_scatter", named)),
+            "scatter_p": float(summary.get("scatter_p", np.nan)),
+            "scatter_cone_deg": float(summary.get("scatter_cone_deg", np.nan))}
 
 
 def score_cases(rows: Sequence[Mapping], quantile: float = 0.95, noise_multiple: float = 3.0
