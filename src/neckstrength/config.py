@@ -533,14 +533,20 @@ def decision_settings(config: Mapping, **over):
     d.update(over)
     if isinstance(d.get("calibration"), (str, Path)):
         d["calibration"] = load_decision_calibration(d["calibration"])
+    if isinstance(d.get("misfit_guard"), (str, Path)):
+        d["misfit_guard"] = load_decision_calibration(d["misfit_guard"], guard=True)
     return DecisionSettings(**d)
 
 
-def load_decision_calibration(path: str | Path):
+def load_decision_calibration(path: str | Path, guard: bool = False):
     """``clinician.decision.calibration``: the recalibration file the decision study writes
-    (``decision_calibration.csv``). A relative path is read from the working folder, else from the package's
+    (``decision_calibration.csv``); with ``guard``, ``clinician.decision.misfit_guard``: the calibrated misfit guard
+    (``decision_misfit_guard.csv``). A relative path is read from the working folder, else from the package's
     own ``data/`` (the shipped file), so sessions started anywhere find it."""
-    from neckstrength.sequential.decision import DecisionCalibration
+    from neckstrength.sequential.decision import DecisionCalibration, MisfitGuard
+
+    key, what, cls = (("misfit_guard", "decision_misfit_guard.csv", MisfitGuard) if guard
+                      else ("calibration", "decision_calibration.csv", DecisionCalibration))
 
     p = Path(path)
     if not p.is_absolute() and not p.exists():
@@ -548,10 +554,10 @@ def load_decision_calibration(path: str | Path):
         if alt.exists():
             p = alt
     if not p.is_file():
-        raise DataValidationError(path, "clinician.decision.calibration: no such file (the decision study's "
-                                        "decision_calibration.csv), or set it to null")
+        raise DataValidationError(path, f"clinician.decision.{key}: no such file (the decision study's {what}), "
+                                        "or set it to null")
     try:
-        return DecisionCalibration.from_frame(pd.read_csv(p, comment="#"), source=str(path))
+        return cls.from_frame(pd.read_csv(p, comment="#"), source=str(path))
     except ValueError as exc:
         raise DataValidationError(path, str(exc)) from None
 
@@ -569,8 +575,10 @@ def decision_study_settings(config: Mapping, model_name: str):
     cohort = CohortSettings(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items() if k in ck})
     rest = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items() if k not in ck}
     emg = tuple(config.get("chapter6", {}).get("emg_groups", {}).get(model_name, []))
+    boot = str(config.get("chapter5", {}).get("bootstrap_direction", "back"))   # Algorithm 4's (alg4 protocol)
     study = DecisionStudySettings(cohort=cohort, emg_groups=emg if any("emg" in p for p in
-                                                                       rest.get("protocols", ())) else (), **rest)
+                                                                       rest.get("protocols", ())) else (),
+                                  bootstrap_direction=boot, **rest)
     return study, n_cand
 
 

@@ -432,3 +432,139 @@ def test_session_screen_says_which_probability_it_prints(p2m7):
                           replace(base, calibration=cal, noise=0.08), JointSettings(), np.random.default_rng(4))
     assert "recalibrated on 10 simulated patients" in decision_p_label(on) and "7 of 7" in decision_p_label(on)
     assert "NOT calibrated: heuristic" in decision_p_label(off) and "noise 0.08" in decision_p_label(off)
+
+
+def _guard_runs(n: int, scale: float = 1.0, seed: int = 3, protocol: str = "forces") -> pd.DataFrame:
+    """Runs whose best-fit RMS at t is noise x a known curve x a log-normal spread (made here, not by the decision);
+    ``scale`` multiplies every RMS (a worse fit than the model's)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for i in range(n):
+        lvl = rng.normal(0, 0.2)                  # a patient's own level, shared over t (as a real run's)
+        for t in range(0, 11):
+            rms = np.nan if t == 0 else 0.05 * (1 - np.exp(-t / 3)) * np.exp(lvl + rng.normal(0, 0.1)) * scale
+            rows.append({"participant": i, "kind": "deficit" if i % 2 else "normal", "protocol": protocol, "t": t,
+                         "misfit_rms": rms, "log_bf": 0.0, "p_deficit": 0.5})
+    return pd.DataFrame(rows)
+
+
+def test_misfit_guard_flags_its_level_of_the_models_own_patients_held_out_and_worse_fits_more():
+    """The guard fitted on 400 patients flags about its level (5%) of the others held out, and most patients whose
+    fits are 2x worse. Chance: the held-out count is Binomial(400, ~0.05) (sd 0.011); the bounds 0.015-0.10 are
+    3 sd away (fixed seed, so the test cannot flake)."""
+    from neckstrength.sequential.decision import MisfitGuard
+    from neckstrength.sequential.decision_study import fit_misfit_guard, misfit_flag_table, misfit_flags
+
+    s = DecisionSettings(n_candidates=1000)
+    runs = _guard_runs(400)
+    guard, check = fit_misfit_guard(runs, s, "s3m24", 25, 0.05)
+    assert guard.t_from == 5 and len(guard.median_rms) == 10 and guard.n_patients == 400
+    row = check.set_index("level").loc[0.05]
+    assert 0.015 <= row["held_out_share"] <= 0.10
+    assert check.set_index("level").loc[0.01, "factor"] > row["factor"] > 1.0
+    # in sample the rule flags at most its level (the quantile is taken 'higher')
+    assert misfit_flags(runs, guard, 5)["flagged"].mean() <= 0.05
+    worse = _guard_runs(200, scale=2.0, seed=4, protocol="worse")
+    tab = misfit_flag_table(pd.concat([runs, worse]), guard, 5).set_index(["protocol", "kind"])
+    assert tab.loc[("worse", "normal"), "share_flagged"] > 0.8
+    assert np.isnan(guard.threshold(4)) and np.isnan(guard.threshold(11)) and guard.threshold(5) > 0
+    back = MisfitGuard.from_frame(guard.to_frame(), source="x")
+    assert back.median_rms == pytest.approx(guard.median_rms, rel=1e-5) and back.factor == pytest.approx(guard.factor)
+    assert back.applies("s3m24", s, 25) == ""
+    assert "noise" in back.applies("s3m24", DecisionSettings(noise=0.08), 25)
+    assert "postures" in back.applies("s3m24", s, 25, several_postures=True)
+    with pytest.raises(ValueError, match="misfit_rms"):
+        fit_misfit_guard(runs.drop(columns="misfit_rms"), s, "s3m24", 25, 0.05)
+
+
+def test_the_decision_prints_the_calibrated_guard_and_falls_back_to_the_heuristic_where_it_does_not_hold(p2m7):
+    """A guard measured for this decision decides 'model misfit' at its threshold (a tiny factor flags, a huge one
+    does not) and says 'calibrated'; one measured for another model is not used: the heuristic, with the reason."""
+    from neckstrength.sequential.decision import MisfitGuard
+
+    model, data = p2m7
+    base = dict(group=("TS-E",), n_candidates=300, n_moves=2, min_tests=2)
+    w, _, _ = solve(model, model.strengths[None], data.U)
+    forces = w[0] / data.force_scale * np.exp(0.05 * np.random.default_rng(0).standard_normal(len(w[0])))
+
+    def run(guard):
+        s = DecisionSettings(**base, misfit_guard=guard)
+        dec = DeficitDecision(model, data.directions, data.U, data.force_scale, model.strengths, s, JointSettings(),
+                              np.random.default_rng(9))
+        for d, f in zip(data.directions[:3], forces[:3]):
+            dec.push(d, float(f))
+        return dec
+
+    def guard(factor, name=model.name):
+        return MisfitGuard(model=name, noise=0.05, n_candidates=300, sampler="resample_move",
+                           n_directions=len(data.directions), level=0.05, t_from=2, factor=factor,
+                           median_rms=(0.1, 0.2, 0.3, 0.4), n_patients=10, check="test")
+
+    tiny, huge, other = run(guard(1e-9)), run(guard(1e9)), run(guard(1e-9, "s3m24"))
+    for dec in (tiny, huge, other):
+        assert np.isfinite(dec.misfit_rms()) and dec.history[-1]["misfit_rms"] == dec.misfit_rms()
+    assert tiny.decision() == "model misfit" and tiny.misfit_check().calibrated and tiny.history[-1]["misfit_flagged"]
+    assert "calibrated: flags 5%" in tiny.history[-1]["misfit_label"] and "FLAGGED" in tiny.misfit_check().label
+    assert huge.decision() != "model misfit" and huge.misfit_check().threshold == pytest.approx(1e9 * 0.3 * 0.05)
+    oc = other.misfit_check()
+    assert not oc.calibrated and oc.threshold == pytest.approx(3.0 * 0.05) and "model p2m7" in oc.label
+    assert oc.flagged == (other.misfit_rms() > 0.15)
+    early = run(guard(1e-9))
+    early.undo()
+    early.undo()
+    assert not early.misfit_check().flagged and "not checked before 2 tests" in early.misfit_check().label
+
+
+def test_alg4_protocol_reads_algorithm4_as_a_score(p2m7):
+    """The study's alg4 protocol runs Algorithm 4 on the participant's forces and scores -log of the group's f_c
+    ratio; the ROC table takes it (no probability: no rule columns), the stopping rule and reliability skip it."""
+    from dataclasses import replace as dc_replace
+
+    from neckstrength.abc.algorithm4 import ABCSettings
+    from neckstrength.sequential.decision_study import DecisionStudySettings, run_decision_study
+
+    model, data = p2m7
+    dirs = list(data.directions)
+    s = DecisionSettings(group=("TS-E",), n_candidates=200, n_moves=1, min_tests=1)
+    study = DecisionStudySettings(cohort=CohortSettings(n_deficit=2, n_normal=2), protocols=("alg4",),
+                                  alg4_tests=(3, len(dirs)), bootstrap_direction=dirs[0], n_max=3)
+
+    def rng_for(what, i):
+        return np.random.default_rng([7, i, len(what)])
+
+    runs = run_decision_study(model, dirs, data.U, data.force_scale, model.strengths, s, JointSettings(), study,
+                              rng_for, abc=ABCSettings(sigma0=0.3, max_iter=2), alg4_order=lambda i: dirs[::-1])
+    assert list(runs["t"]) == [3, len(dirs)] * 4 and runs["p_deficit"].isna().all()
+    assert np.allclose(runs["score"], -np.log(runs["alg4_ratio"])) and (runs["alg4_ratio"] > 0).all()
+    assert (runs.loc[runs["t"] == 3, "direction"] == dirs[0]).all()     # the bootstrap direction kept in
+    roc = roc_table(runs, (3, len(dirs)), 0.05, 0.95)
+    assert list(roc["protocol"]) == ["alg4", "alg4"] and roc["auc"].between(0, 1).all()
+    assert roc["rule_sensitivity_p0.95"].isna().all()
+    assert sequential_table(runs, 0.95)[0].empty and reliability_table(runs, (3,)).empty
+    with pytest.raises(ValueError, match="alg4_order"):
+        run_decision_study(model, dirs, data.U, data.force_scale, model.strengths, s, JointSettings(),
+                           dc_replace(study, alg4_tests=(3,)), rng_for, participants=[0],
+                           abc=ABCSettings(max_iter=1))
+
+
+def test_a_protocols_cache_signature_depends_on_what_its_runs_depend_on_only():
+    """Adding a protocol or changing a read-out (checkpoints, misfit level) keeps the forces runs; an EMG band
+    changes only the EMG protocols' signatures; Algorithm 4's settings only alg4's."""
+    from dataclasses import replace as dc_replace
+
+    from neckstrength.pipeline.clinician import _protocol_signature
+    from neckstrength.sequential.decision_study import DecisionStudySettings
+
+    s, js = DecisionSettings(), JointSettings()
+    a = DecisionStudySettings(protocols=("forces",), emg_groups=("SCM",))
+    b = dc_replace(a, protocols=("forces", "forces+emg", "alg4"), checkpoints=(5,), misfit_level=0.01)
+    c = dc_replace(b, emg_band=0.1)
+
+    def sig(st, p, extra=None):
+        return _protocol_signature(s, st, js, 1, "s3m24", p, extra)
+
+    assert sig(a, "forces") == sig(b, "forces") == sig(c, "forces")
+    assert sig(b, "forces+emg") != sig(c, "forces+emg") and sig(b, "forces+emg") != sig(b, "forces")
+    assert sig(b, "alg4", "abc1") != sig(b, "alg4", "abc2") and sig(b, "forces", None) != sig(dc_replace(
+        b, n_max=10), "forces", None)
+    assert sig(a, "forces") != _protocol_signature(dc_replace(s, noise=0.08), a, js, 1, "s3m24", "forces", None)

@@ -51,6 +51,13 @@ rule clinician_decision:
         per_run="results/clinician/{named}/decision_per_run.csv",
         rule_grid="results/clinician/{named}/decision_rule_grid.csv",
         calibration="results/clinician/{named}/decision_calibration.csv",
+        misfit_guard="results/clinician/{named}/decision_misfit_guard.csv",
+        misfit=report(
+            "results/clinician/{named}/decision_misfit.csv",
+            caption="../report/clinician_decision.rst",
+            category="Clinician loop",
+            labels={"model": "{named}", "table": "deficit decision: the calibrated misfit guard"},
+        ),
         recalibrated=report(
             "results/clinician/{named}/decision_recalibrated.csv",
             caption="../report/clinician_decision.rst",
@@ -82,7 +89,9 @@ rule clinician_decision:
             labels={"model": "{named}", "figure": "deficit decision: ROC, reliability, P by test"},
         ),
     params:
-        settings=settings("clinician.decision", "clinician.decision_study", "chapter6.bin_range_sd",
+        settings=settings("clinician.decision", "clinician.decision_study", "chapter5.settings.{named}",
+            "chapter5.epsilon", "chapter5.q", "chapter5.eps_D", "chapter5.sigma_clip", "chapter5.bootstrap_direction",
+            "chapter5.store_candidates", "chapter6.bin_range_sd",
             "chapter6.emg_band", "chapter6.emg_groups.{named}", "chapter6.joint", "chapter6.n_bins",
             "chapter6.prior_sd_rel", "data.model_dir", "data.thesis_dir", "model", "postures.force_length",
             "seed"),

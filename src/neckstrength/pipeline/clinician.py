@@ -184,35 +184,78 @@ def clinician_deficit(config: Mapping, model_name: str, directions_csv, out_runs
     return summ
 
 
+def _protocol_signature(decision, study, joint, seed: int, model_name: str, protocol: str, extra) -> str:
+    """What one protocol's runs depend on: the decision, the joint sampler, the cohort, the number of tests, the
+    seed, the model, and the protocol's own settings (EMG groups and band; postures; Algorithm 4's settings and
+    tests). The checkpoints, false-alarm rate and the other protocols do not enter: adding a protocol or
+    changing a read-out reruns nothing."""
+    from dataclasses import replace
+
+    own = {"forces+emg": ("emg_groups", "emg_band"), "forces+emg+deep": ("emg_groups", "emg_band"),
+           "forces+postures": ("postures",), "alg4": ("alg4_tests", "bootstrap_direction")}.get(protocol, ())
+    keep = {k: getattr(study, k) for k in own}
+    core = replace(study, protocols=(), checkpoints=(), false_alarm=0.05, misfit_level=0.05,
+                   emg_groups=(), emg_band=0.05, postures=("neutral",), alg4_tests=(25,), bootstrap_direction="")
+    return _signature(decision, core, joint, {"protocol": protocol, **{k: repr(v) for k, v in keep.items()},
+                                              "extra": repr(extra)}, seed, model_name)
+
+
+def _read_cache(path: Path, sig: str) -> pd.DataFrame:
+    """The rows of a protocol's cache file written with signature ``sig`` (a file with another is removed)."""
+    if not path.exists():
+        return pd.DataFrame()
+    with path.open() as fh:
+        head = fh.readline().strip()
+    if head != f"# signature {sig}":
+        path.unlink()
+        return pd.DataFrame()
+    return pd.read_csv(path, comment="#")
+
+
 def clinician_decision(config: Mapping, model_name: str, directions_csv, out_runs, out_roc, out_sequential,
                        out_reliability, out_fig, n_threads: int = 1) -> pd.DataFrame:
-    """The deficit decision measured on simulated patients (issue 31 item 4): ROC, the stopping rule, reliability.
+    """The deficit decision measured on simulated patients (issue 31 item 4): ROC, the stopping rule, reliability,
+    the recalibration of P(deficit) and the calibrated misfit guard (from the forces-only runs).
 
-    Participants run in ``n_threads`` forked processes; each finished participant is appended to
-    ``<out_runs>.partial.csv`` with a signature of the settings, so an interrupted run resumes where it stopped."""
-    from neckstrength.config import decision_settings, decision_study_settings
+    (participant, protocol) runs go to ``n_threads`` forked processes; each finished one is appended to its
+    protocol's cache, ``decision_cache/<protocol>.csv`` beside ``out_runs``, headed by a signature of what that
+    protocol's runs depend on (:func:`_protocol_signature`), so an interrupted run resumes where it stopped and a
+    protocol added later (or a changed read-out) reruns only what depends on the change. The cache stays after
+    the outputs are written."""
+    from dataclasses import replace
+
+    from neckstrength.config import abc_settings, decision_settings, decision_study_settings
     from neckstrength.gap.forked import fork_map
     from neckstrength.sequential.decision_plots import fig_decision_study
-    from neckstrength.sequential.decision_study import recalibrate, reliability_table, roc_table, rule_grid, \
-        run_decision_study, sequential_table
+    from neckstrength.sequential.decision_study import fit_misfit_guard, misfit_flag_table, recalibrate, \
+        reliability_table, roc_table, rule_grid, run_decision_study, sequential_table
 
     model = model_from_config(full_model_from_config(config), config, model_name)
     d, U = model_directions_table(model, load_directions(directions_csv))
     study, n_cand = decision_study_settings(config, model_name)
-    # the study measures the model's own Bayes factor: no recalibration (it is made here, from these runs)
-    decision = decision_settings(config, n_candidates=n_cand, calibration=None)
+    # the study measures the model's own Bayes factor and the heuristic guard: no recalibration and no calibrated
+    # guard (both are made here, from these runs)
+    decision = decision_settings(config, n_candidates=n_cand, calibration=None, misfit_guard=None)
     joint = joint_settings(config)
     seed = int(config["seed"])
     f0 = model.strengths
-    sig = _signature(decision, study, joint, None, seed, model_name)
-    partial = Path(str(out_runs) + ".partial.csv")
-    done = _read_partials(out_runs, sig)
-    finished = set() if done.empty else set(done["participant"])
+    abc = abc_settings(config, model_name) if "alg4" in study.protocols else None
+    force_length = config.get("postures", {}).get("force_length", "relative")
+    cache_dir = Path(out_runs).parent / "decision_cache"
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    sigs = {p: _protocol_signature(decision, study, joint, seed, model_name, p,
+                                   abc if p == "alg4" else (force_length if p == "forces+postures" else None))
+            for p in study.protocols}
+    caches = {p: cache_dir / f"{p}.csv" for p in study.protocols}
     n = study.cohort.n_deficit + study.cohort.n_normal
-    todo = [i for i in range(n) if i not in finished]
+    done = {p: _read_cache(caches[p], sigs[p]) for p in study.protocols}
+    finished = {p: set() if df.empty else set(df["participant"]) for p, df in done.items()}
+    # alg4 after fewer tests than directions reads the forces protocol's order: forces first
+    order = sorted(study.protocols, key=lambda p: (p != "forces", p == "alg4"))
+    todo = [(p, i) for p in order for i in range(n) if i not in finished[p]]
     print(f"decision study of {model_name}: {decision.label()}\n{decision}\n{study}\nseed {seed}; streams "
-          f"'decision/{model_name}/<truth|candidates>' + participant index; {len(finished)} of {n} participants "
-          f"done before", flush=True)
+          f"'decision/{model_name}/<truth|candidates>' + participant index; done before: "
+          + ", ".join(f"{p} {len(finished[p])} of {n}" for p in order), flush=True)
 
     def rng_for(what, i):
         return derive_rng(seed, f"decision/{model_name}/{what}", i)
@@ -226,20 +269,36 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
 
         pset = build_posture_set(full_model_from_config(config), model,
                                  load_posture_tables(config["data"]["model_dir"], list(study.postures)),
-                                 list(study.postures), config.get("postures", {}).get("force_length", "relative"))
+                                 list(study.postures), force_length)
 
-    def one(i):
-        return run_decision_study(model, dirs, U, fs, f0, decision, joint, study, rng_for, participants=[i],
-                                  progress=lambda s: print(s, flush=True), pset=pset)
+    def alg4_order(i):
+        f = _read_cache(caches["forces"], sigs["forces"]) if "forces" in caches else pd.DataFrame()
+        g = f[(f["participant"] == i) & (f["t"] >= 1)].sort_values("t") if not f.empty else f
+        if g.empty:
+            raise ValueError(f"alg4 after fewer than {len(dirs)} tests needs the forces protocol's order "
+                             f"(participant {i} has no forces run)")
+        return list(g["direction"])
+
+    def one(job):
+        protocol, i = job
+        return run_decision_study(model, dirs, U, fs, f0, decision, joint, replace(study, protocols=(protocol,)),
+                                  rng_for, participants=[i], progress=lambda s: print(s, flush=True), pset=pset,
+                                  abc=abc, alg4_order=alg4_order)
 
     t0 = time.time()
-    for _, rows in fork_map(one, todo, max(1, int(n_threads))):
-        new = not partial.exists()
-        with partial.open("a") as fh:
-            if new:
-                fh.write(f"# signature {sig}\n")
-            rows.to_csv(fh, header=new, index=False, float_format="%.8g")
-    runs = _read_partials(out_runs, sig).drop_duplicates(["participant", "protocol", "t"])
+    # forces before alg4 (alg4 may read its order): the other protocols first, alg4 after every forces run is in
+    first = [j for j in todo if j[0] != "alg4"]
+    for batch in (first, [j for j in todo if j[0] == "alg4"]):
+        for k, rows in fork_map(one, batch, max(1, int(n_threads))):
+            path = caches[batch[k][0]]
+            new = not path.exists()
+            with path.open("a") as fh:
+                if new:
+                    fh.write(f"# signature {sigs[batch[k][0]]}\n")
+                rows.to_csv(fh, header=new, index=False, float_format="%.8g")
+    runs = pd.concat([_read_cache(caches[p], sigs[p]) for p in study.protocols], ignore_index=True)
+    runs = runs.drop_duplicates(["participant", "protocol", "t"])
+    runs = runs[runs["participant"] < n]
     runs = runs.sort_values(["participant", "protocol", "t"], kind="stable").reset_index(drop=True)
     cps = tuple(t for t in study.checkpoints if t <= study.n_max)
     roc = roc_table(runs, cps, study.false_alarm, decision.p_decide)
@@ -289,8 +348,27 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
                                 f"map: {cal}"], float_format="%.4g")
         rel = pd.concat([rel, rel_cal], ignore_index=True)
         print(f"recalibration: {cal.label()}\n{rule_cal.to_string(index=False)}", flush=True)
+        guard, gcheck = fit_misfit_guard(runs, decision, model_name, len(dirs), study.misfit_level,
+                                         source=f"decision study of {model_name}, seed {seed}")
+        flags = misfit_flag_table(runs, guard, decision.min_tests)
+        atomic_write_csv(guard.to_frame(), Path(out_roc).with_name("decision_misfit_guard.csv"),
+                         hdr + ["the calibrated misfit guard fitted on these runs (forces only): flag when the best "
+                                "fit's RMS / noise exceeds factor x the patients' median at that t (median_rms, t = "
+                                "1, 2, ...); to use it, copy this file to data/calibration/ and point "
+                                "clinician.decision.misfit_guard at it"], float_format="%.8g")
+        atomic_write_csv(pd.concat([gcheck.assign(what="held-out false flags on the model's own patients"),
+                                    flags.assign(what=f"flagged at level {study.misfit_level:g} (in-sample for "
+                                                      "forces)")], ignore_index=True),
+                         Path(out_roc).with_name("decision_misfit.csv"),
+                         hdr + [f"misfit guard: {guard.label()}", "rows 'held-out': per level, the share of the "
+                                "model's own patients flagged at any t >= t_from by the guard fitted on the other "
+                                "fold (2 folds by participant); rows 'flagged': per protocol and kind"],
+                         float_format="%.4g")
+        print(f"misfit guard: {guard.label()}\n{gcheck.to_string(index=False)}\n{flags.to_string(index=False)}",
+              flush=True)
     else:
-        for name in ("decision_calibration.csv", "decision_recalibrated.csv"):
+        for name in ("decision_calibration.csv", "decision_recalibrated.csv", "decision_misfit_guard.csv",
+                     "decision_misfit.csv"):
             atomic_write_csv(pd.DataFrame({"note": ["no forces-only protocol in this study: nothing recalibrated"]}),
                              Path(out_roc).with_name(name), hdr)
     fig_decision_study(runs, rel, cps, decision.p_decide, out_fig,
@@ -299,5 +377,4 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
     print(roc.to_string(index=False), flush=True)
     print(seq.to_string(index=False), flush=True)
     print(f"done in {time.time() - t0:.0f} s", flush=True)
-    partial.unlink(missing_ok=True)
     return roc

@@ -71,6 +71,9 @@ class DecisionSettings:
     calibration: "DecisionCalibration | None" = None   # recalibration of the Bayes factor measured on simulated
     #                                             patients (config clinician.decision.calibration, a file); None: the
     #                                             model's P(deficit), labelled heuristic
+    misfit_guard: "MisfitGuard | None" = None   # the misfit guard calibrated on simulated patients (config
+    #                                             clinician.decision.misfit_guard, a file); None or where it does not
+    #                                             hold: misfit_factor x noise, labelled heuristic
 
     def __post_init__(self):
         lo, hi = self.deficit_range
@@ -200,6 +203,105 @@ class DecisionCalibration:
                    n_patients=int(r["n_patients"]), t_from=int(r["t_from"]), slope=float(r["slope"]),
                    intercept=float(r["intercept"]),
                    bend=float(r["bend"]), check=str(r["check"]), source=source or str(r.get("source", "")))
+
+
+@dataclass(frozen=True)
+class MisfitGuard:
+    """The misfit guard calibrated on simulated patients (issue 31): is this best fit worse than the model's own
+    patients' best fits at the stated noise?
+
+    The statistic after ``t`` tests is the best candidate's RMS relative force error (:meth:`DeficitDecision.
+    misfit_rms`) over ``noise x median_t``, where ``median_t`` (``median_rms[t - 1]``) is the median of that RMS /
+    noise over the decision study's patients (forces made by the model itself, with 5% noise: the reference
+    distribution of the best fit *under the model*). A patient is flagged "model misfit" at the first ``t >= t_from``
+    at which the statistic exceeds ``factor``, the ``1 - level`` quantile over the study's patients of their largest
+    statistic over ``t >= t_from``: so the guard flags a share ``level`` of the model's own patients over a whole
+    session (the looks at every t counted), by construction on the patients it was fitted on and checked held out
+    (``check``: two folds by participant). Like :class:`DecisionCalibration` it holds for the settings it was
+    measured with; :meth:`applies` says when it does not.
+    """
+
+    model: str
+    noise: float
+    n_candidates: int
+    sampler: str
+    n_directions: int
+    level: float
+    t_from: int
+    factor: float
+    median_rms: tuple[float, ...]               # per t = 1, 2, ...: median best-fit RMS / noise of the study's patients
+    n_patients: int
+    check: str
+    source: str = ""
+
+    def threshold(self, t: int) -> float:
+        """The best-fit RMS (relative force error) above which ``t`` tests are flagged; NaN before ``t_from`` or
+        beyond the tests it was measured at."""
+        if t < self.t_from or t > len(self.median_rms):
+            return float("nan")
+        return float(self.factor * self.median_rms[t - 1] * self.noise)
+
+    def applies(self, model_name: str, settings: "DecisionSettings", n_directions: int, with_emg: bool = False,
+                several_postures: bool = False) -> str:
+        """'' when the guard holds for a decision with these settings, else the reason it does not."""
+        diff = []
+        if model_name != self.model:
+            diff.append(f"model {model_name}, measured on {self.model}")
+        if not math.isclose(settings.noise, self.noise):
+            diff.append(f"noise {settings.noise}, measured at {self.noise}")
+        if settings.n_candidates != self.n_candidates:
+            diff.append(f"n_candidates {settings.n_candidates}, measured at {self.n_candidates}")
+        if settings.sampler != self.sampler:
+            diff.append(f"sampler {settings.sampler}, measured with {self.sampler}")
+        if n_directions != self.n_directions:
+            diff.append(f"{n_directions} test directions, measured with {self.n_directions}")
+        if with_emg:
+            diff.append("EMG entries, measured on forces only")
+        if several_postures:
+            diff.append("tests in several postures, measured in neutral only")
+        return "; ".join(diff)
+
+    def label(self) -> str:
+        return (f"calibrated: flags {self.level:.0%} of the model's own simulated patients over a session "
+                f"({self.n_patients} patients, {self.model}, noise {self.noise:.0%}); check: {self.check}")
+
+    def to_frame(self) -> pd.DataFrame:
+        from dataclasses import asdict
+
+        d = asdict(self)
+        d["median_rms"] = " ".join(f"{x:.6g}" for x in self.median_rms)
+        return pd.DataFrame([d])
+
+    @classmethod
+    def from_frame(cls, df: pd.DataFrame, source: str = "") -> "MisfitGuard":
+        from dataclasses import fields
+
+        need = [f.name for f in fields(cls) if f.name != "source"]
+        miss = [c for c in need if c not in df.columns]
+        if miss or len(df) != 1:
+            raise ValueError(f"{source or 'misfit guard'}: needs one row with columns {need}; missing {miss}, "
+                             f"rows {len(df)}")
+        r = df.iloc[0]
+        med = tuple(float(x) for x in str(r["median_rms"]).split())
+        if not med or not all(np.isfinite(med)):
+            raise ValueError(f"{source or 'misfit guard'}: median_rms must be numbers separated by spaces")
+        return cls(model=str(r["model"]), noise=float(r["noise"]), n_candidates=int(r["n_candidates"]),
+                   sampler=str(r["sampler"]), n_directions=int(r["n_directions"]), level=float(r["level"]),
+                   t_from=int(r["t_from"]), factor=float(r["factor"]), median_rms=med,
+                   n_patients=int(r["n_patients"]), check=str(r["check"]), source=source or str(r.get("source", "")))
+
+
+@dataclass(frozen=True)
+class MisfitCheck:
+    """The misfit guard's result after the tests so far: the best fit, the threshold it was held to, flagged or
+    not, whether the threshold is calibrated (:class:`MisfitGuard`) or the heuristic ``misfit_factor x noise``, and
+    a line that says so (printed with the decision)."""
+
+    rms: float
+    threshold: float
+    flagged: bool
+    calibrated: bool
+    label: str
 
 
 class HypothesisPrior:
@@ -434,14 +536,55 @@ class DeficitDecision:
             best = min(best, float(np.sqrt((rel ** 2).mean(axis=1)).min()))
         return best
 
+    def misfit_guard_note(self) -> str:
+        """Why the settings' calibrated misfit guard does not hold for this decision ('' when it does; 'none' when
+        the settings carry none)."""
+        g = self.settings.misfit_guard
+        if g is None:
+            return "none"
+        return g.applies(self.model.name, self.settings, len(self.directions), with_emg=any(self._emg),
+                         several_postures=self.postures is not None and self.postures != ["neutral"])
+
+    def misfit_check(self) -> MisfitCheck:
+        """The misfit guard after the tests so far. Calibrated (:class:`MisfitGuard`) where it holds: flagged when
+        the best fit is worse than ``factor x`` the model's own patients' median best fit at this many tests
+        (flags ``level`` of them over a session). Elsewhere the heuristic: flagged when the best fit exceeds
+        ``misfit_factor x noise`` RMS. Never flagged before ``min_tests`` tests (nothing is decided then)."""
+        s = self.settings
+        rms = self.misfit_rms()
+        t = len(self.tested)
+        if t < s.min_tests:
+            return MisfitCheck(rms=float(rms), threshold=float("nan"), flagged=False, calibrated=False,
+                               label=f"misfit guard: not checked before {s.min_tests} tests")
+        note = self.misfit_guard_note()
+        thr = s.misfit_guard.threshold(t) if note == "" else float("nan")
+        if note == "" and not np.isfinite(thr):
+            g = s.misfit_guard
+            note = f"{t} tests, measured from the {g.t_from}th to the {len(g.median_rms)}th"
+        cal = note == ""
+        if not cal:
+            thr = s.misfit_factor * s.noise
+        flagged = bool(np.isfinite(rms) and rms > thr)
+        if cal:
+            how = s.misfit_guard.label()
+        else:
+            why = "no calibrated guard configured" if note == "none" else f"the calibrated guard does not hold: {note}"
+            how = f"heuristic ({s.misfit_factor:g} x the {s.noise:.0%} noise; {why})"
+        word = "FLAGGED, model misfit" if flagged else "not flagged"
+        return MisfitCheck(rms=float(rms), threshold=float(thr), flagged=flagged, calibrated=cal,
+                           label=f"misfit guard: best fit {rms:.1%} RMS, threshold {thr:.1%}: {word}; {how}")
+
     def decision(self) -> str:
         """'deficit' / 'no deficit' at the thresholds, 'undecided' between them or before ``min_tests`` tests,
-        'model misfit' when no candidate of either hypothesis fits the forces within ``misfit_factor`` x the noise
-        (RMS): then the Bayes factor says which hypothesis misfits less, not whether the muscle is weak."""
+        'model misfit' when the misfit guard (:meth:`misfit_check`) flags the best fit: then the Bayes factor says
+        which hypothesis misfits less, not whether the muscle is weak."""
         if len(self.tested) < self.settings.min_tests:
             return "undecided"
-        if self.misfit_rms() > self.settings.misfit_factor * self.settings.noise:
+        if self.misfit_check().flagged:
             return "model misfit"
+        return self._p_decision()
+
+    def _p_decision(self) -> str:
         p = self.p_deficit()
         if p >= self.settings.p_decide:
             return "deficit"
@@ -450,9 +593,14 @@ class DeficitDecision:
         return "undecided"
 
     def summary(self) -> dict:
+        mc = self.misfit_check()
         return {"t": len(self.tested), "direction": self.tested[-1] if self.tested else "",
                 "log_bf": self.log_bf(), "log_bf_se": self.log_bf_se(), "p_deficit": self.p_deficit(),
-                "p_deficit_se": self.p_deficit_se(), "p_model": self.p_model(), "p_calibrated": self.calibrated, "decision": self.decision(), "misfit_rms": self.misfit_rms(),
+                "p_deficit_se": self.p_deficit_se(), "p_model": self.p_model(), "p_calibrated": self.calibrated,
+                "decision": "undecided" if len(self.tested) < self.settings.min_tests
+                else ("model misfit" if mc.flagged else self._p_decision()),
+                "misfit_rms": mc.rms, "misfit_threshold": mc.threshold, "misfit_flagged": mc.flagged,
+                "misfit_calibrated": mc.calibrated, "misfit_label": mc.label,
                 "ess_normal": self.posts["normal"].ess_share(), "ess_deficit": self.posts["deficit"].ess_share(),
                 "ratio_mean_deficit": self.group_ratio_mean("deficit"),
                 "ratio_mean_normal": self.group_ratio_mean("normal")}

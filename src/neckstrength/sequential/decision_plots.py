@@ -11,35 +11,41 @@ import pandas as pd
 
 def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoints: Sequence[int], p_decide: float,
                        path: str | Path, title: str) -> None:
-    """Three panels: ROC curves of log BF after each checkpoint (per protocol: line style), the reliability
-    diagram (mean printed P against the share with the deficit, 95% intervals) and the median P(deficit) by test
-    with quartiles, deficit vs normal participants. Legends sit beside the panels, not over the data."""
+    """A row of ROC panels, one per protocol (the score after each checkpoint: log BF, Algorithm 4's -log f_c
+    ratio), above the reliability diagram (mean printed P against the share with the deficit, 95% intervals) and
+    the median P(deficit) by test with quartiles, deficit vs normal participants. Legends sit beside the panels,
+    not over the data."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from neckstrength.sequential.decision_study import roc_curve
+    from neckstrength.sequential.decision_study import _with_p, roc_curve
 
     protocols = list(dict.fromkeys(runs["protocol"]))
     styles = ["-", "--", ":", "-."]
-    fig, ax = plt.subplots(1, 3, figsize=(16, 5.2), constrained_layout=True)
-    a = ax[0]
+    n_top = max(2, len(protocols))
+    fig = plt.figure(figsize=(max(16, 4.2 * n_top), 10), constrained_layout=True)
+    gs = fig.add_gridspec(2, 2 * n_top)
     for pi, protocol in enumerate(protocols):
+        a = fig.add_subplot(gs[0, 2 * pi:2 * pi + 2])
         for ci, t in enumerate(checkpoints):
             c = roc_curve(runs, protocol, t)
-            if c.empty:
+            if c["sensitivity"].isna().all() or len(c) <= 2:
                 continue
-            a.step(c["false_alarm"], c["sensitivity"], where="post", ls=styles[pi % len(styles)], color=f"C{ci}",
-                   label=f"{protocol}, {t} tests")
-    a.plot([0, 1], [0, 1], color="grey", lw=0.8)
-    a.axvline(0.05, color="grey", lw=0.8, ls=":")
-    a.set_xlabel("false-alarm rate (normal participants called deficit)")
-    a.set_ylabel("sensitivity (deficit participants called deficit)")
-    a.set_title("ROC of the Bayes factor")
-    a.set_xlim(0, 1)
-    a.set_ylim(0, 1.02)
-    a.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+            a.step(c["false_alarm"], c["sensitivity"], where="post", color=f"C{ci}", label=f"{t} tests")
+        a.plot([0, 1], [0, 1], color="grey", lw=0.8)
+        a.axvline(0.05, color="grey", lw=0.8, ls=":")
+        a.set_xlabel("false-alarm rate (normal called deficit)")
+        a.set_ylabel("sensitivity (deficit called deficit)")
+        score = "-log f_c(group) / normal" if protocol == "alg4" else "log Bayes factor"
+        a.set_title(f"ROC: {protocol} ({score})", fontsize=9)
+        a.set_xlim(0, 1)
+        a.set_ylim(0, 1.02)
+        a.legend(fontsize=7, loc="lower right")
+    runs = _with_p(runs)
+    protocols = list(dict.fromkeys(runs["protocol"]))
+    ax = [None, fig.add_subplot(gs[1, :n_top]), fig.add_subplot(gs[1, n_top:])]
     a = ax[1]
     for pi, (protocol, g) in enumerate(reliability.groupby("protocol", sort=False)):
         x = g["mean_p_deficit"].to_numpy(float)

@@ -9,9 +9,15 @@ each protocol:
 - ``forces+emg+deep``: the deficit group recorded too (fine-wire EMG);
 - ``forces+postures``: the test directions in several postures (``postures``, the posture set of
   :mod:`neckstrength.postures`), the decision choosing among every (posture, direction) pair; the neutral tests'
-  forces are the ``forces`` protocol's, the other postures' get their own noise (stream ``posture_noise``).
+  forces are the ``forces`` protocol's, the other postures' get their own noise (stream ``posture_noise``);
+- ``alg4``: the thesis's Algorithm 4 (:func:`neckstrength.abc.stage.run_alg4`) on the ``forces`` protocol's forces
+  after ``alg4_tests`` tests (all the directions: its protocol; fewer: the first ones in the order ``alg4_order``
+  gives, e.g. the forces protocol's), read as a score: ``score = -log(f_c / f_base)`` of the group (its muscles'
+  summed f_c over their summed normal strength), so a lower estimate scores higher. It has no probability, so it
+  enters the ROC table only (not the stopping rule or the reliability diagram).
 
-It records after every test the log Bayes factor, its Monte Carlo error, P(deficit) and the decision.
+It records after every test the log Bayes factor (also as ``score``, the ROC's score), its Monte Carlo error,
+P(deficit), the decision and the misfit guard's statistic (the best fit's RMS).
 :func:`roc_table`, :func:`sequential_table` and :func:`reliability_table` summarise it: ROC area and sensitivity
 at a 5% false-alarm rate after t tests (the Bayes factor as the score: a threshold on it is a threshold on
 P(deficit) for any prevalence), the sequential rule's outcome (decided deficit / no deficit / undecided, and the
@@ -35,7 +41,7 @@ from neckstrength.sequential.cohort import CohortSettings, simulate_participant
 from neckstrength.sequential.decision import DecisionSettings, DeficitDecision
 from neckstrength.sequential.joint import JointSettings
 
-PROTOCOLS = ("forces", "forces+emg", "forces+emg+deep", "forces+postures")
+PROTOCOLS = ("forces", "forces+emg", "forces+emg+deep", "forces+postures", "alg4")
 
 
 @dataclass(frozen=True)
@@ -50,8 +56,13 @@ class DecisionStudySettings:
     emg_band: float = 0.05
     false_alarm: float = 0.05
     postures: tuple[str, ...] = ("neutral", "flex20", "ext20")   # of the forces+postures protocol
+    alg4_tests: tuple[int, ...] = (25,)          # the alg4 protocol: Algorithm 4 after these many tests
+    bootstrap_direction: str = "back"            # Algorithm 4's Eq. 5.3 scaling direction (chapter5)
+    misfit_level: float = 0.05                   # the calibrated misfit guard flags this share of the model's patients
 
     def __post_init__(self):
+        if not 0 < self.misfit_level < 0.5:
+            raise ValueError(f"clinician.decision_study.misfit_level must be in (0, 0.5), got {self.misfit_level}")
         bad = [p for p in self.protocols if p not in PROTOCOLS]
         if bad:
             raise ValueError(f"unknown protocols {bad}; known: {PROTOCOLS}")
@@ -64,10 +75,13 @@ def run_decision_study(model: ReducedModel, directions: Sequence[str], U: np.nda
                        study: DecisionStudySettings, rng_for: Callable[[str, int], np.random.Generator],
                        participants: Sequence[int] | None = None, n_threads: int = 1,
                        progress: Callable[[str], None] | None = None,
-                       on_participant: Callable[[pd.DataFrame], None] | None = None, pset=None) -> pd.DataFrame:
-    """One row per participant, protocol and test count t (0 = before any test). Participant ``i`` is drawn from
-    ``rng_for('truth', i)``; both hypotheses' samplers from ``rng_for('candidates', i)`` (the same for every
-    protocol of a participant)."""
+                       on_participant: Callable[[pd.DataFrame], None] | None = None, pset=None, abc=None,
+                       alg4_order: Callable[[int], Sequence[str]] | None = None) -> pd.DataFrame:
+    """One row per participant, protocol and test count t (0 = before any test; the alg4 protocol: one row per
+    ``alg4_tests``). Participant ``i`` is drawn from ``rng_for('truth', i)``; both hypotheses' samplers from
+    ``rng_for('candidates', i)`` (the same for every protocol of a participant). ``abc``: Algorithm 4's settings
+    (:class:`~neckstrength.abc.algorithm4.ABCSettings`, the alg4 protocol); ``alg4_order(i)``: participant ``i``'s
+    test order for Algorithm 4 after fewer tests than directions."""
     from neckstrength.wrench.batched import BasisCache
 
     directions = list(directions)
@@ -104,6 +118,18 @@ def run_decision_study(model: ReducedModel, directions: Sequence[str], U: np.nda
         n_before = len(rows)
         for protocol in study.protocols:
             t0 = time.time()
+            if protocol == "alg4":
+                info = {"participant": i, "kind": kind, "true_ratio": ratio, "protocol": protocol}
+                for t in study.alg4_tests:
+                    rows.append({**info, **_alg4_row(model, directions, U, force_scale, f, forces, gidx, abc,
+                                                     study.bootstrap_direction, t,
+                                                     None if alg4_order is None else alg4_order(i))})
+                if progress:
+                    h = rows[-1]
+                    progress(f"participant {i + 1}/{len(kinds)} ({kind}, group at {ratio:.0%}) alg4: f_c at "
+                             f"{h['alg4_ratio']:.0%} of normal after {h['t']} tests, {h['alg4_iterations']} "
+                             f"iterations; {time.time() - t0:.1f} s (total {time.time() - t_start:.0f} s)")
+                continue
             mask = {"forces+emg": emg_mask, "forces+emg+deep": deep_mask}.get(protocol)
             labels, meas = directions, forces
             if protocol == "forces+postures":
@@ -118,7 +144,7 @@ def run_decision_study(model: ReducedModel, directions: Sequence[str], U: np.nda
                 dec = DeficitDecision(model, directions, U, force_scale, f0, decision, joint,
                                       rng_for("candidates", i), n_threads=n_threads, cache=BasisCache())
             info = {"participant": i, "kind": kind, "true_ratio": ratio, "protocol": protocol}
-            rows.append({**info, **dec.history[-1]})
+            rows.append({**info, **dec.history[-1], "score": dec.history[-1]["log_bf"]})
             for _ in range(n_max):
                 d, _ = dec.propose()
                 k = labels.index(d)
@@ -129,7 +155,7 @@ def run_decision_study(model: ReducedModel, directions: Sequence[str], U: np.nda
                     ub[mask] = np.clip(alpha[k][mask] + study.emg_band, 0, 1)
                     act = (lb, ub)
                 dec.push(d, float(meas[k]), act)
-                rows.append({**info, **dec.history[-1]})
+                rows.append({**info, **dec.history[-1], "score": dec.history[-1]["log_bf"]})
             if progress:
                 h = dec.history[-1]
                 progress(f"participant {i + 1}/{len(kinds)} ({kind}, group at {ratio:.0%}) {protocol}: log BF "
@@ -138,6 +164,51 @@ def run_decision_study(model: ReducedModel, directions: Sequence[str], U: np.nda
         if on_participant:
             on_participant(pd.DataFrame(rows[n_before:]))
     return pd.DataFrame(rows)
+
+
+def _alg4_row(model: ReducedModel, directions: list[str], U: np.ndarray, force_scale: np.ndarray, f: np.ndarray,
+              forces: np.ndarray, gidx: np.ndarray, abc, bootstrap_direction: str, t: int,
+              order: Sequence[str] | None) -> dict:
+    """Algorithm 4 on the participant's forces after ``t`` tests (all directions, or the first ``t`` of ``order``
+    with the bootstrap direction), read as a score of the group's estimate."""
+    from neckstrength.abc.stage import run_alg4
+    from neckstrength.estimation.datasets import Dataset
+
+    if abc is None:
+        raise ValueError("the alg4 protocol needs Algorithm 4's settings (abc)")
+    t = min(int(t), len(directions))
+    if t < len(directions):
+        if order is None:
+            raise ValueError(f"alg4 after {t} of {len(directions)} tests needs a test order (alg4_order)")
+        used = list(order)[:t]
+        if bootstrap_direction not in used:
+            used = used[:-1] + [bootstrap_direction] if t > 1 else [bootstrap_direction]
+    else:
+        used = list(directions)
+    k = [directions.index(x) for x in used]
+    data = Dataset(name="study", directions=used, U=U[k], w_meas=np.asarray(forces)[k] * force_scale[k],
+                   force_scale=np.asarray(force_scale)[k], f_true=f)
+    t0 = time.time()
+    # rng None: Algorithm 4 draws nothing; it would only subsample the stored candidates (not used here)
+    run = run_alg4(model, data, abc, bootstrap_direction, None, 0, progress=lambda s: None)
+    fc = run.estimate["f_c"].to_numpy(float)
+    ratio = float(fc[gidx].sum() / model.strengths[gidx].sum())
+    ratio_a = float(fc[gidx].sum() / run.f0[gidx].sum())
+    return {"t": t, "direction": used[-1], "score": -np.log(ratio), "alg4_ratio": ratio, "alg4_ratio_scaled": ratio_a,
+            "alg4_iterations": int(run.result.iterations), "alg4_converged": bool(run.result.converged),
+            "alg4_seconds": time.time() - t0, "log_bf": np.nan, "p_deficit": np.nan, "decision": ""}
+
+
+def _score(g: pd.DataFrame) -> pd.Series:
+    """The ROC's score: ``score`` where the runs have it (alg4: -log f_c ratio), else log BF (older runs)."""
+    if "score" in g.columns:
+        return g["score"].where(g["score"].notna(), g["log_bf"])
+    return g["log_bf"]
+
+
+def _with_p(runs: pd.DataFrame) -> pd.DataFrame:
+    """The runs of protocols with a probability (not alg4, a score only)."""
+    return runs[runs["p_deficit"].notna()] if "p_deficit" in runs.columns else runs
 
 
 def _auc(pos: np.ndarray, neg: np.ndarray) -> float:
@@ -166,12 +237,14 @@ def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 
 
 def roc_curve(runs: pd.DataFrame, protocol: str, t: int) -> pd.DataFrame:
-    """(false-alarm rate, sensitivity, threshold on log BF) of the score log BF after ``t`` tests."""
+    """(false-alarm rate, sensitivity, threshold on the score) of the score (log BF; alg4: -log of the group's
+    f_c ratio) after ``t`` tests."""
     g = runs[(runs["protocol"] == protocol) & (runs["t"] == t)]
-    pos = g.loc[g["kind"] == "deficit", "log_bf"].to_numpy(float)
-    neg = g.loc[g["kind"] == "normal", "log_bf"].to_numpy(float)
+    sc = _score(g)
+    pos = sc[g["kind"] == "deficit"].to_numpy(float)
+    neg = sc[g["kind"] == "normal"].to_numpy(float)
     thr = np.r_[np.inf, np.sort(np.unique(np.r_[pos, neg]))[::-1], -np.inf]
-    return pd.DataFrame({"protocol": protocol, "t": t, "threshold_log_bf": thr,
+    return pd.DataFrame({"protocol": protocol, "t": t, "threshold_score": thr,
                          "false_alarm": [(neg >= x).mean() for x in thr],
                          "sensitivity": [(pos >= x).mean() for x in thr]})
 
@@ -193,23 +266,26 @@ def roc_table(runs: pd.DataFrame, checkpoints: Sequence[int], false_alarm: float
             g = gp[gp["t"] == t]
             if g.empty:
                 continue
-            pos = g.loc[g["kind"] == "deficit", "log_bf"].to_numpy(float)
-            neg = g.loc[g["kind"] == "normal", "log_bf"].to_numpy(float)
+            sc = _score(g)
+            pos = sc[g["kind"] == "deficit"].to_numpy(float)
+            neg = sc[g["kind"] == "normal"].to_numpy(float)
             auc = _auc(pos, neg)
             curve = roc_curve(runs, protocol, t)
             ok = curve[curve["false_alarm"] <= false_alarm]
             best = ok.iloc[int(np.argmax(ok["sensitivity"].to_numpy()))]
             pp = g.loc[g["kind"] == "deficit", "p_deficit"].to_numpy(float)
             pn = g.loc[g["kind"] == "normal", "p_deficit"].to_numpy(float)
+            pp, pn = pp[np.isfinite(pp)], pn[np.isfinite(pn)]          # alg4: a score, no probability
             k_s, k_f = int((pp >= p_decide).sum()), int((pn >= p_decide).sum())
             s_lo, s_hi = _wilson(k_s, len(pp))
             f_lo, f_hi = _wilson(k_f, len(pn))
             out.append({"protocol": protocol, "t": t, "n_deficit": len(pos), "n_normal": len(neg), "auc": auc,
                         "auc_se": _auc_se(auc, len(pos), len(neg)),
                         f"sensitivity_at_fa{false_alarm:g}": float(best["sensitivity"]),
-                        "threshold_log_bf": float(best["threshold_log_bf"]),
-                        f"rule_sensitivity_p{p_decide:g}": k_s / len(pp), "rule_sensitivity_ci95_low": s_lo,
-                        "rule_sensitivity_ci95_high": s_hi, f"rule_false_alarm_p{p_decide:g}": k_f / len(pn),
+                        "threshold_score": float(best["threshold_score"]),
+                        f"rule_sensitivity_p{p_decide:g}": k_s / len(pp) if len(pp) else np.nan,
+                        "rule_sensitivity_ci95_low": s_lo, "rule_sensitivity_ci95_high": s_hi,
+                        f"rule_false_alarm_p{p_decide:g}": k_f / len(pn) if len(pn) else np.nan,
                         "rule_false_alarm_ci95_low": f_lo, "rule_false_alarm_ci95_high": f_hi})
     return pd.DataFrame(out)
 
@@ -220,7 +296,7 @@ def sequential_table(runs: pd.DataFrame, p_decide: float = 0.95,
     1 - p_decide (no deficit), else undecided after the last test; per protocol and kind the shares and the median
     tests. The test order does not depend on the rule, so any rule can be read off the same runs."""
     per = []
-    for (i, protocol), g in runs.groupby(["participant", "protocol"], sort=False):
+    for (i, protocol), g in _with_p(runs).groupby(["participant", "protocol"], sort=False):
         g = g.sort_values("t")
         g1 = g[g["t"] >= max(1, min_tests)]
         hit = g1[(g1["p_deficit"] >= p_decide) | (g1["p_deficit"] <= 1 - p_decide)]
@@ -232,6 +308,8 @@ def sequential_table(runs: pd.DataFrame, p_decide: float = 0.95,
         per.append({"participant": i, "protocol": protocol, "kind": g["kind"].iloc[0],
                     "true_ratio": g["true_ratio"].iloc[0], "decision": dec, "tests": t})
     per = pd.DataFrame(per)
+    if per.empty:                                 # only protocols without a probability (alg4)
+        return per, pd.DataFrame()
     out = []
     for (protocol, kind), g in per.groupby(["protocol", "kind"], sort=False):
         n = len(g)
@@ -253,7 +331,7 @@ def reliability_table(runs: pd.DataFrame, checkpoints: Sequence[int],
     (Jeffreys), per protocol; pooled over the checkpoints. Calibrated where the mean P lies within the interval."""
     out = []
     e = np.asarray(edges, float)
-    for protocol, gp in runs.groupby("protocol", sort=False):
+    for protocol, gp in _with_p(runs).groupby("protocol", sort=False):
         g = gp[gp["t"].isin(list(checkpoints))]
         p = g["p_deficit"].to_numpy(float)
         y = (g["kind"] == "deficit").to_numpy()
@@ -371,3 +449,96 @@ def recalibrate(runs: pd.DataFrame, decision, model_name: str, n_directions: int
         row["threshold_log_bf_folds"] = " / ".join(f"{c:+.2f}" for c in thr)
         rows.append(row)
     return cal, rel, pd.DataFrame(rows)
+
+
+def _guard_stats(g: pd.DataFrame, noise: float, t_from: int) -> tuple[pd.DataFrame, np.ndarray]:
+    """(participants x t table of best-fit RMS / noise, per-t median of it over the participants)."""
+    piv = g.pivot_table(index="participant", columns="t", values="misfit_rms", aggfunc="first") / noise
+    piv = piv[[t for t in piv.columns if t >= 1]]
+    return piv, piv.median(axis=0).to_numpy(float)
+
+
+def _guard_max(piv: pd.DataFrame, med: np.ndarray, t_from: int) -> pd.Series:
+    """Per participant the largest statistic (RMS / noise over the median at t) over the tests ``t >= t_from``."""
+    cols = [t for t in piv.columns if t >= t_from]
+    ratio = piv[cols] / med[[list(piv.columns).index(t) for t in cols]]
+    return ratio.max(axis=1)
+
+
+def fit_misfit_guard(runs: pd.DataFrame, decision, model_name: str, n_directions: int, level: float,
+                     protocol: str = "forces", source: str = "") -> tuple:
+    """The calibrated misfit guard (:class:`~neckstrength.sequential.decision.MisfitGuard`) from the study's runs of
+    ``protocol`` (the model's own patients), and its held-out check: two folds by participant parity, each fold's
+    patients flagged (at any t >= ``t_from``) by the guard fitted on the other. Returns ``(guard, check)``, the
+    check a table with, per level (``level`` and 0.01 / 0.05 / 0.1 for comparison), the held-out share of the
+    model's patients flagged (Wilson 95%) and the fitted factor."""
+    from neckstrength.sequential.decision import MisfitGuard
+
+    g = runs[(runs["protocol"] == protocol) & (runs["t"] >= 1)]
+    if g.empty or "misfit_rms" not in g.columns or g["misfit_rms"].isna().all():
+        raise ValueError(f"fit_misfit_guard: no best-fit RMS (misfit_rms) in the runs of protocol {protocol!r}")
+    t_max = int(g["t"].max())
+    t_from = min(decision.min_tests, t_max)
+    piv, med = _guard_stats(g, decision.noise, t_from)
+    if list(piv.columns) != list(range(1, t_max + 1)):
+        raise ValueError("fit_misfit_guard: every run needs every t from 1 to its last")
+    rows = []
+    factor = float("nan")
+    for lv in dict.fromkeys((level, 0.01, 0.05, 0.1)):
+        fac = float(np.quantile(_guard_max(piv, med, t_from), 1 - lv, method="higher"))
+        if lv == level:
+            factor = fac
+        part = piv.index.to_numpy() % 2
+        flagged = np.zeros(len(piv), bool)
+        for f in (0, 1):
+            fit, test = piv[part != f], piv[part == f]
+            m = fit.median(axis=0).to_numpy(float)
+            c = float(np.quantile(_guard_max(fit, m, t_from), 1 - lv, method="higher"))
+            flagged[part == f] = (_guard_max(test, m, t_from) > c).to_numpy()
+        k = int(flagged.sum())
+        lo, hi = _wilson(k, len(flagged))
+        rows.append({"level": lv, "factor": fac, "n_patients": len(flagged), "held_out_flagged": k,
+                     "held_out_share": k / len(flagged), "held_out_ci95": f"{lo:.2f}-{hi:.2f}",
+                     "t_from": t_from, "t_max": t_max})
+    check = pd.DataFrame(rows)
+    r0 = check.iloc[0]
+    guard = MisfitGuard(model=model_name, noise=decision.noise, n_candidates=decision.n_candidates,
+                        sampler=decision.sampler, n_directions=int(n_directions), level=float(level),
+                        t_from=int(t_from), factor=factor, median_rms=tuple(float(x) for x in med),
+                        n_patients=int(len(piv)),
+                        check=(f"held out (2 folds by participant): {int(r0['held_out_flagged'])} of "
+                               f"{int(r0['n_patients'])} of the model's own patients flagged "
+                               f"({r0['held_out_share']:.0%}, 95% {r0['held_out_ci95']})"),
+                        source=source)
+    return guard, check
+
+
+def misfit_flags(runs: pd.DataFrame, guard, min_tests: int) -> pd.DataFrame:
+    """Per participant and protocol of ``runs``: flagged by ``guard`` (:class:`~neckstrength.sequential.decision.
+    MisfitGuard`) at some t >= max(``min_tests``, its ``t_from``), the first such t, the largest best-fit RMS over
+    the guard's threshold. The guard is a function of the runs' best-fit RMS and t, so any runs (another truth's)
+    can be read with it afterwards."""
+    out = []
+    t0 = max(min_tests, guard.t_from)
+    for (i, protocol), g in _with_p(runs).groupby(["participant", "protocol"], sort=False):
+        kind = g["kind"].iloc[0]
+        g = g[(g["t"] >= t0) & (g["t"] <= len(guard.median_rms))].sort_values("t")
+        thr = np.array([guard.threshold(int(t)) for t in g["t"]])
+        r = g["misfit_rms"].to_numpy(float) / thr
+        hit = np.flatnonzero(r > 1)
+        out.append({"participant": i, "protocol": protocol, "kind": kind,
+                    "flagged": bool(len(hit)), "first_t": int(g["t"].iloc[hit[0]]) if len(hit) else np.nan,
+                    "max_over_threshold": float(np.nanmax(r)) if len(r) else np.nan})
+    return pd.DataFrame(out)
+
+
+def misfit_flag_table(runs: pd.DataFrame, guard, min_tests: int) -> pd.DataFrame:
+    """Per protocol (truth) and kind: the share of patients the guard flags (Wilson 95%)."""
+    per = misfit_flags(runs, guard, min_tests)
+    out = []
+    for (protocol, kind), g in per.groupby(["protocol", "kind"], sort=False):
+        k, n = int(g["flagged"].sum()), len(g)
+        lo, hi = _wilson(k, n)
+        out.append({"protocol": protocol, "kind": kind, "n": n, "flagged": k, "share_flagged": k / n,
+                    "ci95": f"{lo:.2f}-{hi:.2f}", "median_first_t": float(g["first_t"].median())})
+    return pd.DataFrame(out)

@@ -1,0 +1,77 @@
+"""The calibrated misfit guard of the deficit decision (issue 31): fitted on the decision study's forces-only runs
+(the model's own patients), checked held out, and read on runs from a richer truth.
+
+The guard flags a patient "model misfit" when, at some t >= min_tests, the best candidate's RMS relative force
+error exceeds ``factor x`` the study patients' median at that t (:class:`neckstrength.sequential.decision.
+MisfitGuard`; ``factor``: the ``1 - level`` quantile of the study patients' largest ratio over the session). Its
+false-flag rate on the model's own patients is ``level`` by construction and checked held out (2 folds by
+participant); its flag rate on the richer truths (:mod:`benchmarks.bench_decision_richer`'s runs: 96 elements,
+pushes off direction) is measured here, per level.
+
+    python benchmarks/bench_decision_guard.py --runs results/clinician/s3m24/decision_runs.csv \\
+        --richer richer_runs.csv [--level 0.05] [--out guard.csv]
+
+``--runs``: runs with the best-fit RMS (``misfit_rms``) at every t (the study's ``decision_runs.csv`` or its cache
+``decision_cache/forces.csv``); ``--richer``: ``bench_decision_richer.py --out``'s CSV. ``--out`` writes the
+guard (the file ``clinician.decision.misfit_guard`` reads).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import pandas as pd
+
+
+def main() -> int:
+    from neckstrength.config import decision_settings, decision_study_settings, load_config
+    from neckstrength.io import atomic_write_csv
+    from neckstrength.sequential.decision_study import fit_misfit_guard, misfit_flag_table
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--config", default="config/config.yaml")
+    ap.add_argument("--runs", required=True)
+    ap.add_argument("--richer", default=None)
+    ap.add_argument("--level", type=float, default=None, help="default: clinician.decision_study.misfit_level")
+    ap.add_argument("--n-directions", type=int, default=25)
+    ap.add_argument("--out", default=None)
+    ap.add_argument("--force", action="store_true", help="overwrite --out")
+    a = ap.parse_args()
+    cfg = load_config(a.config)
+    study, n_cand = decision_study_settings(cfg, "s3m24")
+    dec = decision_settings(cfg, n_candidates=n_cand, calibration=None, misfit_guard=None)
+    level = study.misfit_level if a.level is None else a.level
+    runs = pd.read_csv(a.runs, comment="#")
+    runs = runs[runs["protocol"] == "forces"]
+    n_pat = runs.groupby("kind")["participant"].nunique().to_dict()
+    guard, check = fit_misfit_guard(runs, dec, "s3m24", a.n_directions, level,
+                                    source=f"{a.runs}: {n_pat} forces-only patients")
+    pd.set_option("display.width", 250)
+    print(f"patients of the model: {n_pat}; guard at level {level:g}: factor {guard.factor:.3f}; "
+          f"median best-fit RMS / noise at t = {guard.t_from}..{len(guard.median_rms)}: "
+          + " ".join(f"{x:.2f}" for x in guard.median_rms[guard.t_from - 1:]))
+    print("held-out false flags on the model's own patients (2 folds by participant):")
+    print(check.to_string(index=False))
+    tabs = []
+    for lv in check["level"]:
+        g, _ = fit_misfit_guard(runs, dec, "s3m24", a.n_directions, float(lv))
+        both = runs.assign(protocol="model's own truth (in sample)")
+        if a.richer:
+            both = pd.concat([both, pd.read_csv(a.richer, comment="#")], ignore_index=True)
+        tabs.append(misfit_flag_table(both, g, dec.min_tests).assign(level=lv))
+    print("flagged per truth and kind (any t >= min_tests):")
+    print(pd.concat(tabs, ignore_index=True).to_string(index=False))
+    if a.out:
+        from pathlib import Path
+
+        if Path(a.out).exists() and not a.force:
+            raise SystemExit(f"{a.out} exists: pass --force to overwrite it")
+        atomic_write_csv(guard.to_frame(), a.out,
+                         [f"the calibrated misfit guard of the deficit decision (s3m24, forces only), fitted by "
+                          f"benchmarks/bench_decision_guard.py on {a.runs}", f"check: {guard.check}"],
+                         float_format="%.8g")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
