@@ -92,3 +92,35 @@ def test_session_threads_change_speed_only(tmp_path):
     r = Session.resume(out, progress=lambda x: None, threads=2)
     assert r.state.post.n_threads == 2
     assert r.render().split("===", 2)[2] == s.render().split("===", 2)[2]
+
+
+def test_speed_switches_change_no_number(tmp_path):
+    """The engine's speed switches (numpy's BLAS on one thread; the deficit decision updated beside the joint
+    posterior in a second thread) change no number: with both off (the reference of benchmarks/bench_app.py) the same
+    entries give the same snapshot, decision included, after every step and after an undo; a failing decision update
+    leaves the joint posterior as it was."""
+
+    class Reference(Session):
+        one_blas_thread = False
+        concurrent_decision = False
+
+    opts = SessionOptions(model="s3m24", config=CFG, cache=str(tmp_path / "c"))
+    s = Session.start(tmp_path / "a", opts, threads=2)
+    r = Reference.start(tmp_path / "b", opts, threads=2)
+    assert s.decision is not None
+    for line in ("150", "120", "undo", "125", "90"):
+        s.tell(line)
+        r.tell(line)
+        a, b = s.snapshot(), r.snapshot()
+        a.pop("screen"), b.pop("screen")
+        assert a == b and a["decision"]["log_bf"] == b["decision"]["log_bf"]
+    before = s.snapshot()
+
+    def broken(*_args, **_kw):
+        raise RuntimeError("decision failed")
+
+    s.decision.push = broken
+    with pytest.raises(RuntimeError, match="decision failed"):
+        s._push(s.state.likelihood(s.state.remaining[0], 100.0))
+    del s.decision.push
+    assert s.snapshot() == before

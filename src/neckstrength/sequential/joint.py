@@ -236,7 +236,10 @@ class JointPosterior:
 
     def marginal_pdf(self, w: np.ndarray | None = None) -> np.ndarray:
         w = self.weights() if w is None else w
-        fb = self.grid.index(self.F)
+        memo = getattr(self, "_fbin_memo", None)      # the bins change only when the candidates do (a new F array)
+        if memo is None or memo[0] is not self.F:
+            memo = self._fbin_memo = (self.F, self.grid.index(self.F))
+        fb = memo[1]
         return np.stack([np.bincount(fb[:, j], weights=w, minlength=self.grid.n_bins) for j in range(self.model.m)])
 
     def estimate(self) -> pd.DataFrame:

@@ -24,6 +24,7 @@ numbers.
 from __future__ import annotations
 
 import difflib
+import functools
 import json
 import math
 import os
@@ -164,6 +165,22 @@ def _silent(_: str) -> None:
     pass
 
 
+def _one_blas_thread(fn):
+    """Run ``fn`` with numpy's BLAS on one thread (:func:`~neckstrength.wrench.batched.single_threaded_blas`): the
+    engine's products are small (candidates x muscles), and a multi-threaded BLAS spends more time synchronising
+    than computing, worst on a busy machine (the resample-move steps took twice as long, benchmarks/bench_app.py).
+    The parallelism is the solver threads'. The numbers are the same (each product is computed the same way)."""
+    @functools.wraps(fn)
+    def run(self, *args, **kw):
+        if not self.one_blas_thread:
+            return fn(self, *args, **kw)
+        from neckstrength.wrench.batched import single_threaded_blas
+
+        with single_threaded_blas():
+            return fn(self, *args, **kw)
+    return run
+
+
 class Session:
     """One participant's session in folder ``out`` (header, log, outputs).
 
@@ -171,6 +188,12 @@ class Session:
     (which writes no header). ``progress``: a callback for what the engine is doing while it builds the candidates
     (silent when None); ``threads``: the joint posterior's solver threads (the numbers do not depend on it).
     """
+
+    #: numpy's BLAS on one thread inside the engine's calls, and the deficit decision updated beside the joint
+    #: posterior in a second thread (False: the engine as before 2026-11-28, the reference of benchmarks/bench_app.py;
+    #: the numbers are the same either way)
+    one_blas_thread = True
+    concurrent_decision = True
 
     def __init__(self, out: str | Path, opts: SessionOptions, progress: Callable[[str], None] | None = None,
                  threads: int | None = None):
@@ -275,6 +298,7 @@ class Session:
         self.sim = self._candidate_set(U, F, grid)
         self.state = SequentialState(self.model, self.sim, d["force_scale"].to_numpy(float), s, seed=self.seed)
 
+    @_one_blas_thread
     def _joint_state(self):
         from neckstrength.sequential.joint_state import JointState
 
@@ -292,6 +316,7 @@ class Session:
                           key_extra="postures=" + ",".join(self.postures) + f";cost={self.opts.posture_change_cost!r}")
 
 
+    @_one_blas_thread
     def _decision(self, cs):
         """The deficit decision (issue 31; :mod:`neckstrength.sequential.decision`) beside the joint posterior, for a
         model with the group and tests in neutral posture; None otherwise."""
@@ -318,17 +343,42 @@ class Session:
                       f"{time.time() - t0:.1f} s")
         return dec
 
+    @_one_blas_thread
     def _push(self, step) -> None:
-        if self.joint:
+        """Add a measurement to the estimate (and the decision). The joint posterior and the deficit decision are
+        independent (own candidates, random streams and solver caches), so they are updated side by side, the
+        decision in a second thread: a step takes about the longer of the two, not their sum (same numbers)."""
+        if not self.joint:
+            self.state.steps.append(step)
+            return
+        dec = getattr(self, "decision", None)
+        if dec is None or not self.concurrent_decision:
             self.state.push(step)
-            if getattr(self, "decision", None) is not None:
+            if dec is not None:
                 try:
-                    self.decision.push(step.direction, step.force, step.activations)
+                    dec.push(step.direction, step.force, step.activations)
                 except Exception:
                     self.state.undo()
                     raise
-        else:
-            self.state.steps.append(step)
+            return
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(1) as ex:
+            fut = ex.submit(dec.push, step.direction, step.force, step.activations)
+            err = None
+            try:
+                self.state.push(step)
+            except Exception as exc:       # the joint posterior restored itself
+                err = exc
+            try:
+                fut.result()
+            except Exception:              # the decision restored itself; undo the joint posterior's step
+                if err is None:
+                    self.state.undo()
+                raise
+        if err is not None:
+            dec.undo()
+            raise err
 
     # -- candidate set: built once, cached on disk by its key
     def _candidate_set(self, U, F, grid) -> SimulatedSet:
@@ -425,6 +475,7 @@ class Session:
         return s
 
     # -- state changes (log first, then the estimate)
+    @_one_blas_thread
     def _apply(self, r: dict) -> None:
         if r["action"] == "measure":
             step = self.state.likelihood(r["direction"], r["force_N"], r.get("activations"))
@@ -435,6 +486,7 @@ class Session:
             self.skipped.append(r["direction"])
         self.entries.append(r)
 
+    @_one_blas_thread
     def _unapply(self) -> dict:
         r = self.entries.pop()
         if r["action"] == "measure":
@@ -514,6 +566,7 @@ class Session:
         return {"seq": self._seq, "time": time.strftime("%Y-%m-%dT%H:%M:%S"), **rec}
 
     # -- proposals (deterministic per set of tested directions)
+    @_one_blas_thread
     def proposal(self) -> Proposal | None:
         if not self.state.remaining:
             return None
@@ -523,6 +576,7 @@ class Session:
             self._proposals[key] = self.state.propose(rng, self.gamma)
         return self._proposals[key]
 
+    @_one_blas_thread
     def first_score(self) -> float:
         if () not in self._proposals:
             rng = derive_rng(self.seed, "", 6)
@@ -570,6 +624,7 @@ class Session:
         return False, (f"continue: best {self._score_name()} {best:.3f} nats is {ratio:.0%} of the first step's "
                        f"{first:.3f} ({crit})")
 
+    @_one_blas_thread
     def estimate(self) -> pd.DataFrame:
         """The current estimate per muscle (a copy). Computed once per set of measurements: a screen, the snapshot
         and the predicted forces of one step share it (the key is the measurements' content, so an undo and a
@@ -578,7 +633,8 @@ class Session:
                     for r in self.entries if r["action"] == "measure")
         memo = getattr(self, "_estimate_memo", None)
         if memo is None or memo[0] != key:
-            e = self.state.estimate()
+            # the joint posterior's estimate of this state was computed with its step (its history): not again
+            e = self.state.history[-1]["estimate"].copy() if self.joint else self.state.estimate()
             e.insert(1, "f_0", self.f0)
             e.insert(2, "sd_0", self.settings.prior_sd_rel * self.f0)
             self._estimate_memo = memo = (key, e)
@@ -621,6 +677,7 @@ class Session:
         return parse_entry(line, self.choice(self.proposal()), self.directions, self.state.tested, self.muscles,
                            self.postures, self.default_posture())
 
+    @_one_blas_thread
     def propose(self) -> dict | None:
         """The proposed test and every remaining test with its expected information; None when every test is done.
 
@@ -649,6 +706,7 @@ class Session:
                        "criterion": self.criterion, "score_name": self._score_name(), "units": "nats",
                        "alternatives": alts})
 
+    @_one_blas_thread
     def tell(self, entry: Entry | str) -> dict:
         """Apply one entry (an :class:`Entry`, or a line as typed at the prompt, see :meth:`parse`): the record is
         written and fsync'd to the log before the estimate changes and before this returns. Returns ``{"record":
@@ -668,6 +726,7 @@ class Session:
         """Undo the last measurement or skip (logged as an ``undo`` record); :meth:`tell`'s answer."""
         return self.tell(Entry("undo"))
 
+    @_one_blas_thread
     def stop(self) -> dict:
         """Log ``stop`` and write ``summary.csv``, ``summary.png``, ``steps.csv`` and ``measurements.csv``; returns
         :meth:`tell`'s answer with ``"outputs"`` (their paths). A stopped session can be resumed and continued."""
@@ -677,6 +736,7 @@ class Session:
                 "outputs": {"summary_csv": str(csv), "summary_png": str(png), "steps_csv": str(self.out / "steps.csv"),
                             "measurements_csv": str(self.out / "measurements.csv")}}
 
+    @_one_blas_thread
     def predicted_forces(self, tests: Sequence[str]) -> np.ndarray:
         """The model's maximum force (N) in each test's direction (and posture) at the posterior-mean strengths
         ``f_c``, activations unconstrained (HiGHS, Eq. 4.1); a point prediction without uncertainty."""
@@ -699,6 +759,7 @@ class Session:
         out = w[0] / np.asarray(self.force_scale)[idx]
         return np.where(status[0] == 0, out, np.nan)
 
+    @_one_blas_thread
     def snapshot(self) -> dict:
         """Everything a screen shows, as a plain JSON-serialisable dict (no NaN: missing values are None).
 
@@ -788,6 +849,7 @@ class Session:
         prop = self.choice(self.proposal())
         return self.split(prop)[0] if prop else self.state.post.current_posture
 
+    @_one_blas_thread
     def write_summary(self) -> tuple[Path, Path]:
         """``summary.csv`` (estimate per muscle) and ``summary.png``; also ``steps.csv`` and ``measurements.csv``
         (the measurements in order, in the format :func:`~neckstrength.session.repl.replay_csv` reads)."""
