@@ -568,3 +568,14 @@ def test_a_protocols_cache_signature_depends_on_what_its_runs_depend_on_only():
     assert sig(b, "alg4", "abc1") != sig(b, "alg4", "abc2") and sig(b, "forces", None) != sig(dc_replace(
         b, n_max=10), "forces", None)
     assert sig(a, "forces") != _protocol_signature(dc_replace(s, noise=0.08), a, js, 1, "s3m24", "forces", None)
+
+
+def test_a_protocols_cache_keeps_its_columns_and_drops_a_file_of_other_settings(tmp_path):
+    from neckstrength.pipeline.clinician import _append_cache, _read_cache
+
+    f = tmp_path / "forces.csv"
+    _append_cache(f, "abc", pd.DataFrame({"participant": [0], "t": [1], "log_bf": [0.5]}))
+    _append_cache(f, "abc", pd.DataFrame({"participant": [1], "log_bf": [0.7], "t": [2], "new": [3]}))
+    got = _read_cache(f, "abc")
+    assert list(got.columns) == ["participant", "t", "log_bf"] and list(got["log_bf"]) == [0.5, 0.7]
+    assert _read_cache(f, "other").empty and not f.exists()

@@ -212,6 +212,21 @@ def _read_cache(path: Path, sig: str) -> pd.DataFrame:
     return pd.read_csv(path, comment="#")
 
 
+def _append_cache(path: Path, sig: str, rows: pd.DataFrame) -> None:
+    """Append one (participant, protocol) run to a protocol's cache, in the columns of the file's header (a column
+    the rows lack is left empty, one the header lacks is dropped: rows written by an earlier version still read)."""
+    new = not path.exists()
+    if not new:
+        with path.open() as fh:
+            fh.readline()
+            cols = fh.readline().strip().split(",")
+        rows = rows.reindex(columns=cols)
+    with path.open("a") as fh:
+        if new:
+            fh.write(f"# signature {sig}\n")
+        rows.to_csv(fh, header=new, index=False, float_format="%.8g")
+
+
 def clinician_decision(config: Mapping, model_name: str, directions_csv, out_runs, out_roc, out_sequential,
                        out_reliability, out_fig, n_threads: int = 1) -> pd.DataFrame:
     """The deficit decision measured on simulated patients (issue 31 item 4): ROC, the stopping rule, reliability,
@@ -290,12 +305,7 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
     first = [j for j in todo if j[0] != "alg4"]
     for batch in (first, [j for j in todo if j[0] == "alg4"]):
         for k, rows in fork_map(one, batch, max(1, int(n_threads))):
-            path = caches[batch[k][0]]
-            new = not path.exists()
-            with path.open("a") as fh:
-                if new:
-                    fh.write(f"# signature {sigs[batch[k][0]]}\n")
-                rows.to_csv(fh, header=new, index=False, float_format="%.8g")
+            _append_cache(caches[batch[k][0]], sigs[batch[k][0]], rows)
     runs = pd.concat([_read_cache(caches[p], sigs[p]) for p in study.protocols], ignore_index=True)
     runs = runs.drop_duplicates(["participant", "protocol", "t"])
     runs = runs[runs["participant"] < n]
