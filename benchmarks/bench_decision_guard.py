@@ -1,9 +1,10 @@
 """The calibrated misfit guard of the deficit decision (issue 31): fitted on the decision study's forces-only runs
 (the model's own patients), checked held out, and read on runs from a richer truth.
 
-The guard flags a patient "model misfit" when, at some t >= min_tests, the best candidate's RMS relative force
-error exceeds ``factor x`` the study patients' median at that t (:class:`neckstrength.sequential.decision.
-MisfitGuard`; ``factor``: the ``1 - level`` quantile of the study patients' largest ratio over the session). Its
+The guard flags a patient "model misfit" when, at some t >= min_tests, the best candidate's log RMS relative
+force error, standardised by the study patients' median and sd at that t, exceeds ``factor``
+(:class:`neckstrength.sequential.decision.MisfitGuard`; ``factor``: the ``1 - level`` quantile of the study
+patients' largest standardised value over the session). Its
 false-flag rate on the model's own patients is ``level`` by construction and checked held out (2 folds by
 participant); its flag rate on the richer truths (:mod:`benchmarks.bench_decision_richer`'s runs: 96 elements,
 pushes off direction) is measured here, per level.
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
 import pandas as pd
 
 
@@ -47,9 +49,10 @@ def main() -> int:
     guard, check = fit_misfit_guard(runs, dec, "s3m24", a.n_directions, level,
                                     source=f"{a.runs}: {n_pat} forces-only patients")
     pd.set_option("display.width", 250)
-    print(f"patients of the model: {n_pat}; guard at level {level:g}: factor {guard.factor:.3f}; "
-          f"median best-fit RMS / noise at t = {guard.t_from}..{len(guard.median_rms)}: "
-          + " ".join(f"{x:.2f}" for x in guard.median_rms[guard.t_from - 1:]))
+    print(f"patients of the model: {n_pat}; guard at level {level:g}: factor {guard.factor:.3f}")
+    print("t, median best fit, its log sd, threshold: " + "; ".join(
+        f"{t}: {np.exp(m):.1%} {s:.2f} {guard.threshold(t):.1%}"
+        for t, m, s in zip(range(guard.t_from, guard.t_max + 1), guard.log_median, guard.log_sd)))
     print("held-out false flags on the model's own patients (2 folds by participant):")
     print(check.to_string(index=False))
     tabs = []

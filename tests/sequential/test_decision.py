@@ -458,10 +458,10 @@ def test_misfit_guard_flags_its_level_of_the_models_own_patients_held_out_and_wo
     s = DecisionSettings(n_candidates=1000)
     runs = _guard_runs(400)
     guard, check = fit_misfit_guard(runs, s, "s3m24", 25, 0.05)
-    assert guard.t_from == 5 and len(guard.median_rms) == 10 and guard.n_patients == 400
+    assert guard.t_from == 5 and guard.t_max == 10 and len(guard.log_sd) == 6 and guard.n_patients == 400
     row = check.set_index("level").loc[0.05]
     assert 0.015 <= row["held_out_share"] <= 0.10
-    assert check.set_index("level").loc[0.01, "factor"] > row["factor"] > 1.0
+    assert check.set_index("level").loc[0.01, "factor"] > row["factor"] > 0.5
     # in sample the rule flags at most its level (the quantile is taken 'higher')
     assert misfit_flags(runs, guard, 5)["flagged"].mean() <= 0.05
     worse = _guard_runs(200, scale=2.0, seed=4, protocol="worse")
@@ -469,7 +469,8 @@ def test_misfit_guard_flags_its_level_of_the_models_own_patients_held_out_and_wo
     assert tab.loc[("worse", "normal"), "share_flagged"] > 0.8
     assert np.isnan(guard.threshold(4)) and np.isnan(guard.threshold(11)) and guard.threshold(5) > 0
     back = MisfitGuard.from_frame(guard.to_frame(), source="x")
-    assert back.median_rms == pytest.approx(guard.median_rms, rel=1e-5) and back.factor == pytest.approx(guard.factor)
+    assert back.log_median == pytest.approx(guard.log_median, rel=1e-7) and back.factor == pytest.approx(guard.factor)
+    assert back.log_sd == pytest.approx(guard.log_sd, rel=1e-7)
     assert back.applies("s3m24", s, 25) == ""
     assert "noise" in back.applies("s3m24", DecisionSettings(noise=0.08), 25)
     assert "postures" in back.applies("s3m24", s, 25, several_postures=True)
@@ -498,18 +499,19 @@ def test_the_decision_prints_the_calibrated_guard_and_falls_back_to_the_heuristi
     def guard(factor, name=model.name):
         return MisfitGuard(model=name, noise=0.05, n_candidates=300, sampler="resample_move",
                            n_directions=len(data.directions), level=0.05, t_from=2, factor=factor,
-                           median_rms=(0.1, 0.2, 0.3, 0.4), n_patients=10, check="test")
+                           log_median=(np.log(0.3), np.log(0.4)), log_sd=(1.0, 1.0), n_patients=10,
+                           check="test")
 
-    tiny, huge, other = run(guard(1e-9)), run(guard(1e9)), run(guard(1e-9, "s3m24"))
+    tiny, huge, other = run(guard(-50.0)), run(guard(50.0)), run(guard(-50.0, "s3m24"))
     for dec in (tiny, huge, other):
         assert np.isfinite(dec.misfit_rms()) and dec.history[-1]["misfit_rms"] == dec.misfit_rms()
     assert tiny.decision() == "model misfit" and tiny.misfit_check().calibrated and tiny.history[-1]["misfit_flagged"]
     assert "calibrated: flags 5%" in tiny.history[-1]["misfit_label"] and "FLAGGED" in tiny.misfit_check().label
-    assert huge.decision() != "model misfit" and huge.misfit_check().threshold == pytest.approx(1e9 * 0.3 * 0.05)
+    assert huge.decision() != "model misfit" and huge.misfit_check().threshold == pytest.approx(0.4 * np.exp(50.0))
     oc = other.misfit_check()
     assert not oc.calibrated and oc.threshold == pytest.approx(3.0 * 0.05) and "model p2m7" in oc.label
     assert oc.flagged == (other.misfit_rms() > 0.15)
-    early = run(guard(1e-9))
+    early = run(guard(-50.0))
     early.undo()
     early.undo()
     assert not early.misfit_check().flagged and "not checked before 2 tests" in early.misfit_check().label

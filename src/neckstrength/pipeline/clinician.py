@@ -363,8 +363,8 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
         flags = misfit_flag_table(runs, guard, decision.min_tests)
         atomic_write_csv(guard.to_frame(), Path(out_roc).with_name("decision_misfit_guard.csv"),
                          hdr + ["the calibrated misfit guard fitted on these runs (forces only): flag when the best "
-                                "fit's RMS / noise exceeds factor x the patients' median at that t (median_rms, t = "
-                                "1, 2, ...); to use it, copy this file to data/calibration/ and point "
+                                "fit's log RMS exceeds log_median + factor x log_sd of these patients at that t (t = "
+                                "t_from, t_from + 1, ...); to use it, copy this file to data/calibration/ and point "
                                 "clinician.decision.misfit_guard at it"], float_format="%.8g")
         atomic_write_csv(pd.concat([gcheck.assign(what="held-out false flags on the model's own patients"),
                                     flags.assign(what=f"flagged at level {study.misfit_level:g} (in-sample for "

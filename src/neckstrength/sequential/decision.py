@@ -211,14 +211,16 @@ class MisfitGuard:
     patients' best fits at the stated noise?
 
     The statistic after ``t`` tests is the best candidate's RMS relative force error (:meth:`DeficitDecision.
-    misfit_rms`) over ``noise x median_t``, where ``median_t`` (``median_rms[t - 1]``) is the median of that RMS /
-    noise over the decision study's patients (forces made by the model itself, with 5% noise: the reference
-    distribution of the best fit *under the model*). A patient is flagged "model misfit" at the first ``t >= t_from``
-    at which the statistic exceeds ``factor``, the ``1 - level`` quantile over the study's patients of their largest
-    statistic over ``t >= t_from``: so the guard flags a share ``level`` of the model's own patients over a whole
-    session (the looks at every t counted), by construction on the patients it was fitted on and checked held out
-    (``check``: two folds by participant). Like :class:`DecisionCalibration` it holds for the settings it was
-    measured with; :meth:`applies` says when it does not.
+    misfit_rms`), standardised on its log scale by the decision study's patients (forces made by the model itself,
+    with 5% noise: the reference distribution of the best fit *under the model*): ``z_t = (log rms - log_median_t) /
+    log_sd_t``, with the median and the MAD-based sd of log rms over those patients at that t. A patient is flagged
+    "model misfit" at the first ``t >= t_from`` at which ``z_t`` exceeds ``factor``, the ``1 - level`` quantile over
+    the study's patients of their largest ``z_t`` over the session: so the guard flags a share ``level`` of the
+    model's own patients over a whole session (the looks at every t counted), by construction on the patients it
+    was fitted on and checked held out (``check``: two folds by participant). Standardising per t keeps every t's
+    look equally strict (the best fit after 5 tests varies far more than after 25). Like
+    :class:`DecisionCalibration` it holds for the settings it was measured with; :meth:`applies` says when it does
+    not.
     """
 
     model: str
@@ -229,17 +231,23 @@ class MisfitGuard:
     level: float
     t_from: int
     factor: float
-    median_rms: tuple[float, ...]               # per t = 1, 2, ...: median best-fit RMS / noise of the study's patients
+    log_median: tuple[float, ...]               # per t = t_from, t_from + 1, ...: median log best-fit RMS
+    log_sd: tuple[float, ...]                   # ... and its MAD-based sd over the study's patients
     n_patients: int
     check: str
     source: str = ""
 
+    @property
+    def t_max(self) -> int:
+        return self.t_from + len(self.log_median) - 1
+
     def threshold(self, t: int) -> float:
         """The best-fit RMS (relative force error) above which ``t`` tests are flagged; NaN before ``t_from`` or
         beyond the tests it was measured at."""
-        if t < self.t_from or t > len(self.median_rms):
+        if t < self.t_from or t > self.t_max:
             return float("nan")
-        return float(self.factor * self.median_rms[t - 1] * self.noise)
+        k = t - self.t_from
+        return float(math.exp(self.log_median[k] + self.factor * self.log_sd[k]))
 
     def applies(self, model_name: str, settings: "DecisionSettings", n_directions: int, with_emg: bool = False,
                 several_postures: bool = False) -> str:
@@ -269,7 +277,8 @@ class MisfitGuard:
         from dataclasses import asdict
 
         d = asdict(self)
-        d["median_rms"] = " ".join(f"{x:.6g}" for x in self.median_rms)
+        for k in ("log_median", "log_sd"):
+            d[k] = " ".join(f"{x:.8g}" for x in getattr(self, k))
         return pd.DataFrame([d])
 
     @classmethod
@@ -282,12 +291,13 @@ class MisfitGuard:
             raise ValueError(f"{source or 'misfit guard'}: needs one row with columns {need}; missing {miss}, "
                              f"rows {len(df)}")
         r = df.iloc[0]
-        med = tuple(float(x) for x in str(r["median_rms"]).split())
-        if not med or not all(np.isfinite(med)):
-            raise ValueError(f"{source or 'misfit guard'}: median_rms must be numbers separated by spaces")
+        med, sd = (tuple(float(x) for x in str(r[k]).split()) for k in ("log_median", "log_sd"))
+        if not med or len(med) != len(sd) or not all(np.isfinite(med + sd)) or min(sd) <= 0:
+            raise ValueError(f"{source or 'misfit guard'}: log_median and log_sd must be equally many numbers "
+                             "separated by spaces (sd > 0)")
         return cls(model=str(r["model"]), noise=float(r["noise"]), n_candidates=int(r["n_candidates"]),
                    sampler=str(r["sampler"]), n_directions=int(r["n_directions"]), level=float(r["level"]),
-                   t_from=int(r["t_from"]), factor=float(r["factor"]), median_rms=med,
+                   t_from=int(r["t_from"]), factor=float(r["factor"]), log_median=med, log_sd=sd,
                    n_patients=int(r["n_patients"]), check=str(r["check"]), source=source or str(r.get("source", "")))
 
 
@@ -547,8 +557,8 @@ class DeficitDecision:
 
     def misfit_check(self) -> MisfitCheck:
         """The misfit guard after the tests so far. Calibrated (:class:`MisfitGuard`) where it holds: flagged when
-        the best fit is worse than ``factor x`` the model's own patients' median best fit at this many tests
-        (flags ``level`` of them over a session). Elsewhere the heuristic: flagged when the best fit exceeds
+        the best fit is worse than the model's own patients' best fits at this many tests by more than the guard's
+        standardised threshold (flags ``level`` of them over a session). Elsewhere the heuristic: flagged when the best fit exceeds
         ``misfit_factor x noise`` RMS. Never flagged before ``min_tests`` tests (nothing is decided then)."""
         s = self.settings
         rms = self.misfit_rms()
@@ -560,7 +570,7 @@ class DeficitDecision:
         thr = s.misfit_guard.threshold(t) if note == "" else float("nan")
         if note == "" and not np.isfinite(thr):
             g = s.misfit_guard
-            note = f"{t} tests, measured from the {g.t_from}th to the {len(g.median_rms)}th"
+            note = f"{t} tests, measured from the {g.t_from}th to the {g.t_max}th"
         cal = note == ""
         if not cal:
             thr = s.misfit_factor * s.noise

@@ -451,18 +451,17 @@ def recalibrate(runs: pd.DataFrame, decision, model_name: str, n_directions: int
     return cal, rel, pd.DataFrame(rows)
 
 
-def _guard_stats(g: pd.DataFrame, noise: float, t_from: int) -> tuple[pd.DataFrame, np.ndarray]:
-    """(participants x t table of best-fit RMS / noise, per-t median of it over the participants)."""
-    piv = g.pivot_table(index="participant", columns="t", values="misfit_rms", aggfunc="first") / noise
-    piv = piv[[t for t in piv.columns if t >= 1]]
-    return piv, piv.median(axis=0).to_numpy(float)
+def _guard_stats(piv: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Per column (t) of a participants x t table of best-fit RMS: the median of log RMS and its MAD-based sd."""
+    y = np.log(piv.to_numpy(float))
+    med = np.median(y, axis=0)
+    sd = 1.4826 * np.median(np.abs(y - med), axis=0)
+    return med, np.maximum(sd, 1e-6)
 
 
-def _guard_max(piv: pd.DataFrame, med: np.ndarray, t_from: int) -> pd.Series:
-    """Per participant the largest statistic (RMS / noise over the median at t) over the tests ``t >= t_from``."""
-    cols = [t for t in piv.columns if t >= t_from]
-    ratio = piv[cols] / med[[list(piv.columns).index(t) for t in cols]]
-    return ratio.max(axis=1)
+def _guard_max(piv: pd.DataFrame, med: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """Per participant the largest standardised log best fit over the table's tests."""
+    return ((np.log(piv.to_numpy(float)) - med) / sd).max(axis=1)
 
 
 def fit_misfit_guard(runs: pd.DataFrame, decision, model_name: str, n_directions: int, level: float,
@@ -479,22 +478,24 @@ def fit_misfit_guard(runs: pd.DataFrame, decision, model_name: str, n_directions
         raise ValueError(f"fit_misfit_guard: no best-fit RMS (misfit_rms) in the runs of protocol {protocol!r}")
     t_max = int(g["t"].max())
     t_from = min(decision.min_tests, t_max)
-    piv, med = _guard_stats(g, decision.noise, t_from)
-    if list(piv.columns) != list(range(1, t_max + 1)):
-        raise ValueError("fit_misfit_guard: every run needs every t from 1 to its last")
+    piv = g.pivot_table(index="participant", columns="t", values="misfit_rms", aggfunc="first")
+    if list(piv.columns) != list(range(1, t_max + 1)) or piv.isna().any().any():
+        raise ValueError("fit_misfit_guard: every run needs every t from 1 to the last")
+    piv = piv[list(range(t_from, t_max + 1))]
+    med, sd = _guard_stats(piv)
     rows = []
     factor = float("nan")
     for lv in dict.fromkeys((level, 0.01, 0.05, 0.1)):
-        fac = float(np.quantile(_guard_max(piv, med, t_from), 1 - lv, method="higher"))
+        fac = float(np.quantile(_guard_max(piv, med, sd), 1 - lv, method="higher"))
         if lv == level:
             factor = fac
         part = piv.index.to_numpy() % 2
         flagged = np.zeros(len(piv), bool)
         for f in (0, 1):
             fit, test = piv[part != f], piv[part == f]
-            m = fit.median(axis=0).to_numpy(float)
-            c = float(np.quantile(_guard_max(fit, m, t_from), 1 - lv, method="higher"))
-            flagged[part == f] = (_guard_max(test, m, t_from) > c).to_numpy()
+            m, s = _guard_stats(fit)
+            c = float(np.quantile(_guard_max(fit, m, s), 1 - lv, method="higher"))
+            flagged[part == f] = _guard_max(test, m, s) > c
         k = int(flagged.sum())
         lo, hi = _wilson(k, len(flagged))
         rows.append({"level": lv, "factor": fac, "n_patients": len(flagged), "held_out_flagged": k,
@@ -504,8 +505,8 @@ def fit_misfit_guard(runs: pd.DataFrame, decision, model_name: str, n_directions
     r0 = check.iloc[0]
     guard = MisfitGuard(model=model_name, noise=decision.noise, n_candidates=decision.n_candidates,
                         sampler=decision.sampler, n_directions=int(n_directions), level=float(level),
-                        t_from=int(t_from), factor=factor, median_rms=tuple(float(x) for x in med),
-                        n_patients=int(len(piv)),
+                        t_from=int(t_from), factor=factor, log_median=tuple(float(x) for x in med),
+                        log_sd=tuple(float(x) for x in sd), n_patients=int(len(piv)),
                         check=(f"held out (2 folds by participant): {int(r0['held_out_flagged'])} of "
                                f"{int(r0['n_patients'])} of the model's own patients flagged "
                                f"({r0['held_out_share']:.0%}, 95% {r0['held_out_ci95']})"),
@@ -522,7 +523,7 @@ def misfit_flags(runs: pd.DataFrame, guard, min_tests: int) -> pd.DataFrame:
     t0 = max(min_tests, guard.t_from)
     for (i, protocol), g in _with_p(runs).groupby(["participant", "protocol"], sort=False):
         kind = g["kind"].iloc[0]
-        g = g[(g["t"] >= t0) & (g["t"] <= len(guard.median_rms))].sort_values("t")
+        g = g[(g["t"] >= t0) & (g["t"] <= guard.t_max)].sort_values("t")
         thr = np.array([guard.threshold(int(t)) for t in g["t"]])
         r = g["misfit_rms"].to_numpy(float) / thr
         hit = np.flatnonzero(r > 1)
