@@ -17,7 +17,7 @@ first. Compared with the same patients' runs of the study's ``decision_runs.csv`
 the ROC area of log BF, the rule's outcome (deficit / no deficit / undecided / model misfit) and the median
 best-fit RMS.
 
-    python benchmarks/bench_decision_richer.py --n 20 [--truths rich96 direction_error] [--out runs.csv]
+    python benchmarks/bench_decision_richer.py --n 20 [--start 0] [--truths rich96 direction_error] [--out runs.csv]
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--config", default="config/config.yaml")
     ap.add_argument("--n", type=int, default=20, help="deficit and normal patients each")
+    ap.add_argument("--start", type=int, default=0, help="skip the first this many of each kind (a second process)")
     ap.add_argument("--truths", nargs="+", default=["rich96", "direction_error"])
     ap.add_argument("--runs", default="results/clinician/s3m24/decision_runs.csv", help="the study's runs")
     ap.add_argument("--workers", type=int, default=1)
@@ -66,7 +67,7 @@ def main() -> int:
     cs = CaseSettings()
     grp = np.argmax(model.S, axis=1)
     n_def = study.cohort.n_deficit
-    idx = [j for k in range(a.n) for j in (k, n_def + k)]
+    idx = [j for k in range(a.start, a.n) for j in (k, n_def + k)]
     print(f"bench_decision_richer: s3m24, {a.n} deficit + {a.n} normal patients of the study, truths {a.truths}; "
           f"{dec_s.label()}; seed {seed}; {platform.node()}, load {os.getloadavg()[0]:.1f}; "
           f"{time.strftime('%Y-%m-%d %H:%M:%S')} UTC", flush=True)
