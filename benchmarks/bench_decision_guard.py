@@ -25,6 +25,34 @@ import numpy as np
 import pandas as pd
 
 
+def rule_with_guard(runs: pd.DataFrame, guard, cal, dec) -> pd.DataFrame:
+    """Per truth and kind, the stopping rule read afterwards from each run: at the first t >= min_tests at which the
+    guard flags ("model misfit") or the recalibrated P reaches a threshold; with no guard for comparison."""
+    out = []
+    for (truth, kind), g in runs.groupby(["protocol", "kind"], sort=False):
+        row = {"truth": truth, "kind": kind, "n": g["participant"].nunique()}
+        for name, use in (("no guard", False), ("guard", True)):
+            calls = []
+            for _, gp in g.groupby("participant"):
+                gp = gp[gp["t"] >= dec.min_tests].sort_values("t")
+                call = "undecided"
+                for t, lbf, rms in zip(gp["t"], gp["log_bf"], gp["misfit_rms"]):
+                    if use and t <= guard.t_max and rms > guard.threshold(int(t)):
+                        call = "model misfit"
+                        break
+                    p = 1 / (1 + np.exp(-cal.log_lr(float(lbf))))
+                    if p >= dec.p_decide or p <= 1 - dec.p_decide:
+                        call = "deficit" if p >= dec.p_decide else "no deficit"
+                        break
+                calls.append(call)
+            c = pd.Series(calls)
+            row[name] = " / ".join(str(int((c == x).sum())) for x in ("deficit", "no deficit", "undecided",
+                                                                       "model misfit"))
+            row[f"wrong, {name}"] = int((c == ("no deficit" if kind == "deficit" else "deficit")).sum())
+        out.append(row)
+    return pd.DataFrame(out)
+
+
 def main() -> int:
     from neckstrength.config import decision_settings, decision_study_settings, load_config
     from neckstrength.io import atomic_write_csv
@@ -64,6 +92,13 @@ def main() -> int:
         tabs.append(misfit_flag_table(both, g, dec.min_tests).assign(level=lv))
     print("flagged per truth and kind (any t >= min_tests):")
     print(pd.concat(tabs, ignore_index=True).to_string(index=False))
+    if a.richer:
+        print(f"the stopping rule with the recalibrated P and this guard (level {level:g}) read on each run: "
+              "deficit / no deficit / undecided / model misfit (wrong calls: deficit for a normal participant, no "
+              "deficit for a deficit patient)")
+        print(rule_with_guard(pd.concat([runs.assign(protocol="model's own truth (in sample)"),
+                                         pd.read_csv(a.richer, comment="#")], ignore_index=True),
+                              guard, decision_settings(cfg).calibration, dec).to_string(index=False))
     if a.out:
         from pathlib import Path
 
