@@ -174,7 +174,12 @@ def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
                 "replicates come from the fitted model, which that gap contradicts; an effect that absorbs part of an "
                 "unrelated misfit also beats them. Read the named effect as reducing the misfit by more than noise "
                 "would, not as its cause (docs/gap_diagnosis.md, Current results)."]
-               if s.get("chosen", "none") != "none" and s.get("remainder_unexplained") else []), "",
+               if s.get("chosen", "none") != "none" and s.get("remainder_unexplained") else []),
+             *([f"- **Aiming scatter** (a random push direction per test; docs/gap_diagnosis.md, Aiming scatter): "
+                f"slope test of the squared held-out residuals on the tests' direction sensitivity p = "
+                f"{s['scatter_p']:.3g} (named where the remainder is not explained and p <= {s['scatter_alpha']:g}; "
+                f"{'named' if s.get('scatter_named') else 'not named'}), cone estimate "
+                f"{s['scatter_cone_deg']:.1f} deg (heuristic)."] if "scatter_p" in s else []), "",
              *_sensitivity_lines(s),
              "### Power per effect", "",
              "Smallest simulated effect size (share of the way from neutral to the far bound of its range) that this "
