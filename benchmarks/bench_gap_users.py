@@ -9,7 +9,9 @@ sees the forces and that noise only. Its settings are the config's ``gap`` with 
 (``gap.benchmark``: folds, bootstrap, starts; no pairs, no refinement, no reach envelope), the calibrated decision
 with ``--null-replicates`` noise-only replicates (19: p resolution 0.05), no sensitivity table and no power tables
 (neither changes the decision). Candidates: ``gap.effects`` plus ``submaximal_effort``, ``posture_drift`` and
-``anthropometric_scaling`` where the registry has them (otherwise those truths are scored "not a candidate").
+``anthropometric_scaling`` where the registry has them (otherwise those truths are scored "not a candidate"), and
+the decision's aiming-scatter step (``direction_scatter``, :mod:`neckstrength.gap.scatter`), the target of the
+direction-error truth since 2026-11-28.
 
 Scoring (:mod:`neckstrength.gap.scoring`): model-free detectability (held-out gap under the base model above the
 95th percentile of the base-model controls'), named correctly among detectable cases and false alarms on the
