@@ -93,6 +93,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--controls", type=int, default=24, help="noise-only controls of the base model")
     ap.add_argument("--rich-controls", type=int, default=12, help="controls from the 96-element truth")
     ap.add_argument("--limit", type=int, default=None, help="only the first cases of the stratified order")
+    ap.add_argument("--only", default=None, help="comma-separated case names (u001, ...): diagnose only these "
+                    "cases of the design (its draws unchanged), e.g. to look at single cases again")
     ap.add_argument("--null-replicates", type=int, default=19, help="noise-only replicates of the decision")
     ap.add_argument("--chunk", type=int, default=8, help="cases per batch (results do not depend on it)")
     ap.add_argument("--jobs", type=int, default=1, help="processes sharing out a batch's effects")
@@ -170,6 +172,12 @@ def main(argv=None) -> dict:
 
     summ = rescore()
     todo = [c for c in cases if c.name not in done]
+    if a.only:
+        only = [x.strip() for x in a.only.split(",") if x.strip()]
+        unknown = sorted(set(only) - {c.name for c in cases})
+        if unknown:
+            raise SystemExit(f"--only: no case {', '.join(unknown)} in this design ({len(cases)} cases)")
+        todo = [c for c in todo if c.name in only]
     if a.score_only:
         todo = []
     for b0 in range(0, len(todo), max(1, a.chunk)):

@@ -168,3 +168,5 @@ def test_reduced_benchmark_runs_end_to_end(tmp_path):
     assert tab["group"].str.contains("false alarm").any()
     r2 = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r2.returncode == 0 and "3 cases (3 done before)" in r2.stdout
+    r3 = subprocess.run(cmd + ["--only", "u002,u999"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r3.returncode != 0 and "--only: no case u999" in r3.stderr
