@@ -5,13 +5,19 @@ Times, for one data set of the measurement table with the config's diagnosis set
 effects): the diagnosis without calibration (the fits of the ranking, pairs, refinement, bootstrap, reach
 envelope) with the exact Jacobian and, as the reference measured in the same run, with forward differences
 (``--reference``); then the calibrated diagnosis (noise-only and power replicates, ``gap.calibration``).
-Prints wall and CPU seconds per stage and the machine load (``os.getloadavg``), and writes them as JSON.
-Timings on a shared machine are only comparable as ratios within one run.
+With ``--solver-reference`` every run is repeated with the per-direction batched solver alone
+(``neckstrength.gap.fit.FUSED_SOLVER = False``, the solver before the compiled all-direction pass of
+``neckstrength.wrench.fused``) as the reference timed in the same run, and the two runs' summaries are compared
+(decision, p-values, gaps: equal up to solver rounding, 1e-6).
+Prints wall and CPU seconds per stage (CPU of the main process and of the worker processes) and the machine load
+(``os.getloadavg``), and writes them as JSON. Timings on a shared machine are only comparable as ratios within one
+run.
 
 Run from the repository root::
 
     .venv/bin/python benchmarks/bench_gap.py                                  # s3m24, S003, full config
     .venv/bin/python benchmarks/bench_gap.py --dataset S005 --reference --out bench_gap.json
+    .venv/bin/python benchmarks/bench_gap.py --workers 2 --solver-reference   # fused pass vs per-direction solver
 """
 
 from __future__ import annotations
@@ -25,7 +31,8 @@ from dataclasses import replace
 
 
 def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: bool, effects=None,
-        workers: int = 1) -> dict:
+        workers: int = 1, solver_reference: bool = False) -> dict:
+    import neckstrength.gap.fit as fitmod
     from neckstrength.config import build_directions, diagnosis_settings, gap_blind_dataset, gap_context, load_config
     from neckstrength.gap.diagnose import diagnose
 
@@ -44,7 +51,10 @@ def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: boo
                                                    fit=replace(s.fit, exact_gradient=False))))
     if calibrate and s.calibration.replicates > 0:
         runs.append(("calibrated", s))
+    if solver_reference:
+        runs = runs + [(tag + "_reference_solver", st) for tag, st in runs]
     for tag, st in runs:
+        fitmod.FUSED_SOLVER = not tag.endswith("_reference_solver")
         t0, c0, l0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
         k0 = os.times().children_user + os.times().children_system
         stages = []
@@ -57,13 +67,46 @@ def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: boo
         out[tag] = {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
                     "cpu_workers_s": os.times().children_user + os.times().children_system - k0,
                     "load_before": l0, "load_after": os.getloadavg()[0], "decision": d.summary.get("decision"),
-                    "gap_before": d.summary["gap_before"], "gap_after": d.summary["gap_after"], "stages": stages}
+                    "gap_before": d.summary["gap_before"], "gap_after": d.summary["gap_after"], "stages": stages,
+                    "summary": {k: v for k, v in d.summary.items() if isinstance(v, (str, int, float, bool))},
+                    "ranking": d.effects[["candidate", "gap_cv"]].to_dict("list")}
         print(f"{tag}: {out[tag]['wall_s']:.0f} s wall, {out[tag]['cpu_s']:.0f} s CPU (+ "
               f"{out[tag]['cpu_workers_s']:.0f} s in worker processes), load "
               f"{l0:.1f} -> {out[tag]['load_after']:.1f}: {d.summary.get('decision')}", flush=True)
+    fitmod.FUSED_SOLVER = True
+    if solver_reference:
+        for tag, _ in runs:
+            if tag.endswith("_reference_solver"):
+                continue
+            a, b = out[tag], out[tag + "_reference_solver"]
+            cpu_a, cpu_b = a["cpu_s"] + a["cpu_workers_s"], b["cpu_s"] + b["cpu_workers_s"]
+            diffs = _differences(a, b)
+            out[tag + "_solver_ratio_cpu"] = cpu_b / cpu_a
+            out[tag + "_solver_differences"] = diffs
+            print(f"{tag}: fused pass {cpu_a:.1f} s CPU ({a['wall_s']:.0f} s wall) vs per-direction solver "
+                  f"{cpu_b:.1f} s CPU ({b['wall_s']:.0f} s wall): {cpu_b / cpu_a:.2f}x less CPU; "
+                  f"{'results equal to 1e-6' if not diffs else 'DIFFERENT: ' + '; '.join(diffs[:5])}", flush=True)
     if reference:
         out["speedup_cpu"] = out["finite_differences"]["cpu_s"] / out["exact_gradient"]["cpu_s"]
         print(f"exact Jacobian vs finite differences: {out['speedup_cpu']:.2f}x less CPU")
+    return out
+
+
+def _differences(a: dict, b: dict, tol: float = 1e-6) -> list[str]:
+    """Where two runs' summaries and rankings differ (numbers beyond ``tol`` relative, anything else unequal)."""
+    out = []
+    for k in sorted(set(a["summary"]) | set(b["summary"])):
+        x, y = a["summary"].get(k), b["summary"].get(k)
+        if isinstance(x, float) and isinstance(y, float):
+            if not (x == y or abs(x - y) <= tol * max(1.0, abs(y)) or (x != x and y != y)):
+                out.append(f"{k}: {x} vs {y}")
+        elif x != y:
+            out.append(f"{k}: {x} vs {y}")
+    ra, rb = a["ranking"], b["ranking"]
+    if ra["candidate"] != rb["candidate"]:
+        out.append("ranking order")
+    elif any(abs(x - y) > tol * max(1.0, abs(y)) for x, y in zip(ra["gap_cv"], rb["gap_cv"])):
+        out.append("ranking gap_cv")
     return out
 
 
@@ -77,9 +120,11 @@ def main() -> None:
     ap.add_argument("--effects", default=None, help="comma-separated effects (default: config gap.effects)")
     ap.add_argument("--out", default=None, help="JSON file for the timings")
     ap.add_argument("--workers", type=int, default=1, help="processes for the calibration's screen")
+    ap.add_argument("--solver-reference", action="store_true",
+                    help="also time every run with the per-direction solver alone (gap.fit.FUSED_SOLVER = False)")
     a = ap.parse_args()
     res = run(a.config, a.model, a.dataset, a.reference, not a.no_calibration,
-              a.effects.split(",") if a.effects else None, a.workers)
+              a.effects.split(",") if a.effects else None, a.workers, a.solver_reference)
     if a.out:
         with open(a.out, "w") as fh:
             json.dump(res, fh, indent=2)

@@ -58,6 +58,12 @@ class FitSettings:
     exact_gradient: bool = True
 
 
+#: The fits' calls (a few strength vectors times every direction) go through the compiled all-direction pass
+#: of :mod:`neckstrength.wrench.fused` (False: the per-direction batched solver alone, the reference that
+#: ``benchmarks/bench_gap.py --reference`` times and the tests compare with).
+FUSED_SOLVER = True
+
+
 def make_cache(max_bases: int = 512):
     """A basis cache for the batched solver (None when only the reference solver is available).
 
@@ -67,7 +73,7 @@ def make_cache(max_bases: int = 512):
         from neckstrength.wrench.batched import BasisCache
     except ImportError:  # pragma: no cover
         return None
-    return BasisCache(max_bases=max_bases, max_entries=100_000)
+    return BasisCache(max_bases=max_bases, max_entries=100_000, fused=FUSED_SOLVER)
 
 
 class Simulator:

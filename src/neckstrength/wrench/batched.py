@@ -1140,12 +1140,17 @@ class BasisCache:
     misses with the compiled dual simplex (default; False: HiGHS for every miss, as before).
     """
 
-    def __init__(self, max_bases: int = 2048, max_entries: int = 4096, decay: float = 0.5, simplex: bool = True):
+    def __init__(self, max_bases: int = 2048, max_entries: int = 4096, decay: float = 0.5, simplex: bool = True,
+                 fused: bool = False):
         self.simplex = simplex
         self.max_bases = max_bases
         self.max_entries = max_entries
         self.decay = decay
         self._entries: dict[tuple, DirectionSolver] = {}
+        # fused: calls of at most FUSED_MAX_ROWS rows go through the compiled all-direction pass
+        # (neckstrength.wrench.fused) first; its misses come back to the DirectionSolvers
+        self.fused = bool(fused) and simplex and _simplex is not None
+        self._stores: dict[bytes, object] = {}
 
     @staticmethod
     def _rkey(R: np.ndarray) -> bytes:
@@ -1182,10 +1187,24 @@ class BasisCache:
                 setattr(tot, k, getattr(tot, k) + v)
         out = dict(vars(tot))
         out["entries"] = len(self._entries)
+        fc = sum((st.counters for st in self._stores.values()), np.zeros(6, dtype=np.int64))
+        for name, v in zip(("fused_cache_hits", "fused_simplex_solved", "fused_simplex_pivots", "fused_learned_bases",
+                            "fused_farkas_hits", "fused_failed"), fc.tolist()):
+            out[name] = v
         return out
 
     def clear(self) -> None:
         self._entries.clear()
+        self._stores.clear()
+
+    def store(self, R: np.ndarray, rkey: bytes):
+        """The compiled all-direction cache (:class:`neckstrength.wrench.fused.FusedStore`) of ``R``."""
+        st = self._stores.get(rkey)
+        if st is None:
+            from neckstrength.wrench.fused import FusedStore
+
+            st = self._stores[rkey] = FusedStore(R)
+        return st
 
 
 def _bound_rows(K: int, m: int, alpha_lb, alpha_ub) -> tuple[np.ndarray, np.ndarray]:
@@ -1233,6 +1252,8 @@ def max_wrench_batched_arrays(R: np.ndarray, JT: np.ndarray, F: np.ndarray, U: n
     status = np.zeros((N, K), dtype=np.int8)
     alpha = np.empty((N, K, m)) if return_alpha else None    # every row is written below
     rkey = BasisCache._rkey(R)
+    if cache.fused and 0 < N <= FUSED_MAX_ROWS and R.shape[0] > 0:
+        return _fused_call(cache, R, JT, F, U, lbs, ubs, rkey, return_alpha)
     solvers = [cache.entry(R, JT @ U[k], lbs[k], ubs[k], rkey) for k in range(K)]
     n_threads = max(1, min(int(n_threads), K))
 
@@ -1255,6 +1276,57 @@ def max_wrench_batched_arrays(R: np.ndarray, JT: np.ndarray, F: np.ndarray, U: n
                     run(k, s, e, Fc, fmax, Fc32)
             else:
                 list(pool.map(run, range(K), *([x] * K for x in (s, e, Fc, fmax, Fc32))))
+    return w, alpha, status
+
+
+#: Calls with at most this many strength vectors use the compiled all-direction pass when the cache has
+#: ``fused=True`` (larger calls amortise the per-direction solvers' bookkeeping over their rows).
+FUSED_MAX_ROWS = 4096
+
+
+def _fused_call(cache: BasisCache, R, JT, F, U, lbs, ubs, rkey, return_alpha):
+    """:func:`max_wrench_batched_arrays` through :mod:`neckstrength.wrench.fused`; the rows and directions it does
+    not certify go to the per-direction solvers (and so to HiGHS), whose bases and Farkas certificates it then
+    takes over."""
+    from neckstrength.wrench import fused as _fz
+
+    st = cache.store(R, rkey)
+    K = U.shape[0]
+    U = np.ascontiguousarray(U, dtype=float)
+    ckey = U.tobytes() + JT.tobytes() + lbs.tobytes() + ubs.tobytes()    # the same directions as a recent call?
+    hit = st.calls.get(ckey)
+    if hit is None:
+        Bv = [JT @ U[k] for k in range(K)]        # b = J^T u, rounded as the per-direction path does
+        slots = np.array([st.slot(Bv[k], lbs[k], ubs[k]) for k in range(K)], dtype=np.int64)
+        if len(st.calls) >= 64:
+            st.calls.pop(next(iter(st.calls)))
+        st.calls[ckey] = (Bv, slots)
+    else:
+        Bv, slots = hit
+    F = np.ascontiguousarray(F, dtype=float)
+    w, code, alpha = st.solve(F, slots, return_alpha, (SIMPLEX_MAX_ITER and
+                                                       max(SIMPLEX_MAX_ITER, SIMPLEX_ITER_PER_COLUMN * R.shape[1])),
+                              (PRIMAL_TOL, DUAL_TOL, GAP_REL, MAX_COND), ZERO_REL, cache.decay)
+    status = np.empty(code.shape, dtype=np.int8)
+    status[code == _fz.OK] = _OPT
+    status[code == _fz.ZERO] = _ZERO
+    status[code == _fz.INFEASIBLE] = _INF
+    status[code == _fz.UNBOUNDED] = _UNB
+    if return_alpha:
+        alpha[(code == _fz.INFEASIBLE) | (code == _fz.UNBOUNDED)] = np.nan
+    bad = code == _fz.FAILED
+    if bad.any():
+        for k in np.flatnonzero(bad.any(axis=0)):
+            rows = np.flatnonzero(bad[:, k])
+            e = cache.entry(R, Bv[k], lbs[k], ubs[k], rkey)
+            with _single_threaded_blas():
+                wk, sk, ak = e._solve(F[rows], return_alpha)
+            w[rows, k] = wk
+            status[rows, k] = sk
+            if return_alpha:
+                alpha[rows, k] = ak
+            st.add_farkas(int(slots[k]), e.farkas)
+            st.adopt(int(slots[k]), e.bases, F[rows[0]])
     return w, alpha, status
 
 
