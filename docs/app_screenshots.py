@@ -59,12 +59,18 @@ def main(argv=None) -> int:
             page.fill("input[name=participant]", "P01")
             page.fill("input[name=name]", "P01-2026-11-28")
             page.select_option("select[name=model]", "s3m24")
+            for ch in ("SCM-R", "SCM-L", "semicap-R", "semicap-L", "mf-R", "mf-L"):   # surface and fine-wire EMG
+                page.check(f"input[name=emg_channel][value='{ch}']")
             page.screenshot(path=out / "app_start.png", full_page=True)
             page.click("#create-btn")
             page.wait_for_url("**/s/P01-2026-11-28", timeout=300_000)
             for k, force in enumerate(("150", "95", "160", "210"), start=2):
                 page.wait_for_function("document.getElementById('step').textContent.length > 0")
                 page.fill("#force", force)
+                if k == 2:                      # EMG of the first test, one field per channel chosen at the start
+                    page.click("details.emg summary")
+                    for ch, v in (("SCM-R", "0.35"), ("SCM-L", "0.3"), ("semicap-R", "0.6"), ("semicap-L", "0.55")):
+                        page.fill(f"#emg-{ch}", v)
                 page.click("#record")
                 page.wait_for_function(f"document.getElementById('step').textContent.startsWith('Step {k} ')",
                                        timeout=120_000)

@@ -30,7 +30,12 @@ def test_whole_session_in_the_browser(live_app, page_at, tmp_path, cache_dir):
     page.goto(f"{base}/?token={TOKEN}")
     page.fill("input[name=participant]", "P01")
     page.fill("input[name=name]", "P01")
+    page.select_option("select[name=model]", "s3m24")         # the EMG channels offered follow the model
+    page.wait_for_selector("input[name=emg_channel][value='mf-L']")
     page.select_option("select[name=model]", "p2m7")
+    page.wait_for_selector("input[name=emg_channel][value='TS-E']")
+    assert page.locator("input[name=emg_channel][value='mf-L']").count() == 0
+    page.check("input[name=emg_channel][value='TS-B']")         # one surface EMG channel recorded
     page.click("details.more summary")
     page.fill("input[name=n_candidates]", str(P2M7["n_candidates"]))
     page.fill("input[name=seed]", str(P2M7["seed"]))
@@ -48,8 +53,18 @@ def test_whole_session_in_the_browser(live_app, page_at, tmp_path, cache_dir):
     page.wait_for_function("document.getElementById('force-error').textContent.indexOf('force_N') >= 0")
     assert "implausibly large" in page.inner_text("#force-error")
     assert page.inner_text("#step").startswith("Step 1 ")
+    # the test page asks for the chosen EMG channel only, as a number; a bad value is named and changes nothing
+    assert page.locator("#emg-fields input.emg-in").count() == 1 and page.locator("#emg-TS-B").count() == 1
+    page.click("details.emg summary")
+    page.fill("#emg-TS-B", "1.5")
+    page.fill("#force", "150")
+    page.click("#record")
+    assert "EMG TS-B" in page.inner_text("#force-error") and "outside 0-1" in page.inner_text("#force-error")
+    assert page.inner_text("#step").startswith("Step 1 ")
+    page.fill("#emg-TS-B", "0.4")
     # five tests: four forces and one best-of-3 (Appendix A: a third trial when the second is > 10 % above the first)
     _record(page, 150, 2)
+    assert "with activations TS-B 0.4" in page.inner_text("#message") and page.input_value("#emg-TS-B") == ""
     _record(page, 120, 3)
     page.check("#best-of")
     page.fill("#force", "100")
@@ -77,6 +92,7 @@ def test_whole_session_in_the_browser(live_app, page_at, tmp_path, cache_dir):
     page.click("#stop")
     page.wait_for_url("**/s/P01/end", timeout=60_000)
     assert page.locator("img.summary-fig").count() == 1
+    assert "TS-B 0.4" in page.inner_text("table.readings")          # the EMG entered, on the end page
     links = page.locator("#exports a")
     assert {links.nth(i).inner_text() for i in range(links.count())} >= {"summary.csv", "measurements.csv",
                                                                            "steps.csv", "report.html"}
@@ -89,10 +105,11 @@ def test_whole_session_in_the_browser(live_app, page_at, tmp_path, cache_dir):
     assert "Neck muscle strength" in rep.inner_text("h1")
     # the same entries through `session replay`: identical numbers
     out = tmp_path / "replay"
-    opts = SessionOptions(participant="P01", config=CFG, cache=cache_dir,
+    opts = SessionOptions(participant="P01", config=CFG, cache=cache_dir, emg_channels=["TS-B"],
                           **{k: v for k, v in P2M7.items() if k != "participant"})
     assert replay_into(out, opts, root / "P01" / "measurements.csv", threads=1) == 0
     assert _data_lines(out / "summary.csv") == _data_lines(root / "P01" / "summary.csv")
+    assert "TS-B:0.4" in (root / "P01" / "measurements.csv").read_text()
     release(out)
     assert not errors, errors
     assert all(u.startswith(base) or u.startswith("data:") for u in requests), [u for u in requests

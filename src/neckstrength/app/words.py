@@ -114,7 +114,8 @@ def clinician_view(snap: dict) -> dict:
         rel = None if p in (None, 0) else (m["force_N"] - p) / p
         readings.append({"test": m["test"], "posture": m["posture"], "direction": m["direction"],
                          "force_N": m["force_N"], "predicted_N": p, "diff_pct": None if rel is None else 100 * rel,
-                         "retest": rel is not None and abs(rel) > RETEST_REL})
+                         "retest": rel is not None and abs(rel) > RETEST_REL,
+                         "emg": ", ".join(f"{k} {v:g}" for k, v in (m.get("activations") or {}).items())})
     dec = snap.get("decision") or snap.get("deficit")
     answer = None
     if dec is not None:
