@@ -105,7 +105,9 @@ def main(argv=None) -> int:
         token = secrets.token_hex(16)
         app = create_app(Path(tmp) / "app", token, config=a.config, cache=cache, threads=a.threads)
         port = free_port()
-        server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+        # keep-alive longer than a step of the other two sessions (else a reused connection can meet its close)
+        server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning",
+                                               timeout_keep_alive=3600))
         th = threading.Thread(target=server.run, daemon=True)
         th.start()
         while not server.started:
