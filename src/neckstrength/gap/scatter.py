@@ -1,20 +1,21 @@
 """Aiming scatter: a push direction that misses the target by a random angle in each test (issue 32, item 1).
 
-A participant who aims each test's push a few degrees off the target, in a direction that differs from test to
-test, changes each test's maximum force by ``log F(n') - log F(n)``: zero on average over the aim (a simulation
-with the benchmark's truths: mean -0.016 to +0.020, 36-64 % of tests lower, for cones of 6-15 deg), but with a
-spread that grows with how sharply the test's force depends on its direction (SD 0.05-0.15 in log). No candidate
-that changes the predicted *mean* force can explain it: the largest force inside the Appendix A window
-(``direction_tolerance``) raises every test (+0.08 to +0.21 in log for the same cones) and is uncorrelated with
-it (-0.27 to 0.28), and the mean over the cone moves the forces by SD 0.015-0.035 only. Repeat trials of one test
-share its aim, so the repeats' scatter does not see it either. What it leaves is **excess scatter shaped by
-direction sensitivity**: for an aim uniform in a cone of half-angle ``c``, ``E[r_k^2] = s^2 + v_k c^2 / (2 a^2)``
-for the log residual ``r_k`` of test ``k``, where ``v_k`` is the mean squared change of the fitted model's log
-force over a ring of directions at angle ``a`` around the target (:func:`direction_sensitivity`).
+A participant who aims each test's push a few degrees off the target, in a direction that differs from test to test,
+changes each test's maximum force by ``log F(n') - log F(n)``: zero on average over the aim (with the benchmark's
+truths and true strengths, ``benchmarks/bench_gap_truth_signatures.py``: mean -0.031 to +0.033, 36-72 % of tests
+lower, for cones of 7-15 deg), but with a spread that grows with how sharply the test's force depends on its
+direction (SD 0.05-0.15 in log). No candidate that changes the predicted *mean* force can explain it: the largest
+force inside the cone (the window hypothesis of ``direction_tolerance``) raises every test (+0.09 to +0.22 in log)
+and is uncorrelated with it (-0.19 to +0.28), and the mean over the cone moves the forces by SD 0.018-0.058 only.
+Repeat trials of one test share its aim, so the repeats' scatter does not see it either. What it leaves is **excess
+scatter shaped by direction sensitivity**: for an aim uniform in a cone of half-angle ``c``, ``E[r_k^2] = s^2 + v_k
+c^2 / (2 a^2)`` for the log residual ``r_k`` of test ``k``, where ``v_k`` is the mean squared change of the fitted
+model's log force over a ring of directions at angle ``a`` around the target (:func:`direction_sensitivity`).
 
 **Test.** The slope of the squared held-out log residuals on ``v_k`` (least squares), its p-value from
-``permutations`` random reassignments of ``v`` to the tests (exact under the null that the residuals' sizes do not
-depend on the tests' direction sensitivity, e.g. measurement noise alone). Cone estimate:
+``permutations`` random reassignments of ``v`` to the tests (exact where the residuals' sizes do not depend on the
+tests' direction sensitivity, e.g. measurement noise about the true forces; *not* exact on a fitted model's
+held-out residuals, whose prediction error is larger at direction-sensitive tests: heuristic there). Cone estimate:
 ``c = a sqrt(2 max(slope, 0))`` (heuristic: the ring's mean square stands in for the squared gradient; checked by
 the benchmark's direction-error truths, not by a calibration).
 """
@@ -32,8 +33,8 @@ from neckstrength.wrench import solve
 @dataclass(frozen=True)
 class ScatterSettings:
     """``ring_deg``: angle ``a`` of the ring of directions (deg); ``ring_points``: directions on it (spatial
-    models; planar: the two in-plane tilts); ``permutations``; ``alpha``: the test's level (its false-alarm rate
-    under noise alone, added to the calibrated decision's; the decision's family rate is at most their sum)."""
+    models; planar: the two in-plane tilts); ``permutations``; ``alpha``: the level the decision's step uses
+    (:func:`neckstrength.gap.diagnose._aim_scatter`)."""
 
     ring_deg: float = 10.0
     ring_points: int = 8
