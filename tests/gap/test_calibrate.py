@@ -114,6 +114,7 @@ def test_a_gap_three_times_the_stated_noise_is_never_consistent_with_noise(ctx_p
     assert "### Sensitivity to the noise level" in text and "| prior high | 0.15 |" in text
     # the aiming-scatter step runs on the remainder and says so (noise only: its shape test is not significant)
     assert "**Aiming scatter**" in text and 0 < d["scatter_p"] <= 1 and d["named"] == d["chosen"]
+    assert "**Scope of the p-value**" in text and "false-alarm rate 0.05" in text
     assert d["gap_over_noise"] > 3 and d["remainder_unexplained"] and d["remainder_tested"]
     assert "not explained by any candidate" in d["remainder"] and d["p_remainder_gap"] == pytest.approx(1 / 20)
     sens = {r["noise"]: r for r in d["sensitivity"]}
