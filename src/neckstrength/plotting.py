@@ -107,8 +107,9 @@ def _save(fig, out, dpi: int = 110):
     plt.close(fig)
 
 
-def save_png(fig, out: str | Path, dpi: int = 110) -> None:
-    """``fig`` as a PNG with a 256-colour palette (no dithering).
+def save_png(fig, out: str | Path, dpi: int = 110, **savefig_kw) -> None:
+    """``fig`` as a PNG with a 256-colour palette (no dithering); ``savefig_kw`` go to ``fig.savefig`` (e.g.
+    ``bbox_inches``).
 
     Line, bar and map figures look the same at about a third of the bytes of matplotlib's RGBA PNG, which keeps
     the Snakemake report (every figure embedded in one HTML file) small.
@@ -116,7 +117,7 @@ def save_png(fig, out: str | Path, dpi: int = 110) -> None:
     from PIL import Image
 
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
+    fig.savefig(buf, format="png", dpi=dpi, **savefig_kw)
     buf.seek(0)
     img = Image.open(buf).convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT,
                                                    dither=Image.Dither.NONE)

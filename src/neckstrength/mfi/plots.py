@@ -22,7 +22,9 @@ def _save(fig, out: str | Path) -> None:
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.tmp.png")
-    fig.savefig(tmp, dpi=120, bbox_inches="tight")
+    from neckstrength.plotting import save_png
+
+    save_png(fig, tmp, dpi=120, bbox_inches="tight")   # 256-colour palette: the report stays small
     plt.close(fig)
     tmp.replace(out)
 

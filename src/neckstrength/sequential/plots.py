@@ -184,7 +184,7 @@ def fig_criteria_curves(curves: pd.DataFrame, entropy_label: str, title: str, ou
 
     ``curves``: columns ``criterion``, ``t``, ``entropy``, ``rel_error`` (means over simulated participants).
     """
-    from neckstrength.plotting import plt   # Agg backend
+    from neckstrength.plotting import plt, save_png   # Agg backend
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for crit, g in curves.groupby("criterion", sort=False):
@@ -199,7 +199,7 @@ def fig_criteria_curves(curves: pd.DataFrame, entropy_label: str, title: str, ou
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     Path(out).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=dpi)
+    save_png(fig, out, dpi=dpi)   # 256-colour palette: the report stays small
     plt.close(fig)
 
 

@@ -104,6 +104,8 @@ def quality_figure(selected: pd.DataFrame, fatigue_dirs: pd.DataFrame, settings:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    from neckstrength.plotting import save_png
+
+    save_png(fig, tmp, dpi=110)   # 256-colour palette: the report stays small
     plt.close(fig)
     tmp.replace(path)
