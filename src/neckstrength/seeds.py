@@ -102,6 +102,7 @@ STREAMS: tuple[Stream, ...] = (
     Stream(("gap/power/{dataset}/{effect}/{size}",), "gap.calibrate", "the power simulation's noise"),
     Stream(("gap/null/{dataset}",), "gap.calibrate", "the null simulation's noise (key + '/{tag}' for a tagged null)"),
     Stream(("gap/starts/{key}/{dataset}",), "gap.engine", "a refit's random starts", extra="fold + 1"),
+    Stream(("gap/scatter/{dataset}",), "gap.diagnose (aiming scatter)", "the aiming-scatter test's simulation"),
     # clinician session (neckstrength session, the app)
     Stream(("session/{model}",), "session.state", "the prior candidates (spawned)"),
     Stream(("session/{model}/joint",), "session.state", "the joint estimator"),
