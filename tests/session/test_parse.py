@@ -44,3 +44,24 @@ def test_parse_entry_directions():
         parse_entry("measure forehead 90", "back", DIRS, ["forehead"], MUSCLES)
     with pytest.raises(InputError, match="force is missing"):
         parse_entry("measure chinFront", "back", DIRS, [], MUSCLES)
+
+
+def test_emg_channels_offered_and_resolved():
+    """The EMG channels of a model (surface: the configured groups, both sides; deep: the decision's group) and the
+    --emg choice: names, 'surface', 'deep', 'all', none; an unknown channel names the allowed ones."""
+    import pytest
+
+    from neckstrength.session import emg_choices, resolve_emg_channels
+
+    muscles = ["hyoids-R", "hyoids-L", "SCM-R", "SCM-L", "mf-R", "mf-L", "trap-R", "trap-L"]
+    ch = emg_choices(muscles, ("SCM", "trap", "mf"), [5, 4])
+    assert ch == {"surface": ["SCM-R", "SCM-L", "trap-R", "trap-L"], "deep": ["mf-R", "mf-L"]}
+    assert resolve_emg_channels(None, ch) is None
+    assert resolve_emg_channels("none", ch) == resolve_emg_channels([], ch) == []
+    assert resolve_emg_channels("deep", ch) == ["mf-R", "mf-L"]
+    assert resolve_emg_channels("trap-L, SCM-R", ch) == ["SCM-R", "trap-L"]
+    assert resolve_emg_channels(["all"], ch) == ch["surface"] + ch["deep"]
+    with pytest.raises(ValueError, match="did you mean SCM-R.*allowed: SCM-R"):
+        resolve_emg_channels("SCM-r", ch)
+    with pytest.raises(ValueError, match="not an EMG channel"):
+        resolve_emg_channels("hyoids-R", ch)
