@@ -17,9 +17,9 @@ from collections import defaultdict
 import pytest
 
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
-REDUCED_MAX_MB = 11.0      # 8.65 MB on 2026-11-28
+REDUCED_MAX_MB = 11.0      # 8.19 MB on 2026-11-28
 ITEM_MAX_MB = 0.8          # largest embedded item 0.50 MB (results/report/scorecard.csv)
-FULL_MAX_MB = 15.5         # 13.5 MB on 2026-11-28; +4.2 MB if Chapter 5's p3m12 / s3m24 figures are 2x / 3x p2m7's
+FULL_MAX_MB = 15.5         # 13.0 MB on 2026-11-28; +4.2 MB if Chapter 5's p3m12 / s3m24 figures are 2x / 3x p2m7's
                            # and the full scorecard 1.8x: still under 20 MB (docs/benchmarks.md#report-size)
 
 
