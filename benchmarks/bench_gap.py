@@ -5,10 +5,9 @@ Times, for one data set of the measurement table with the config's diagnosis set
 effects): the diagnosis without calibration (the fits of the ranking, pairs, refinement, bootstrap, reach
 envelope) with the exact Jacobian and, as the reference measured in the same run, with forward differences
 (``--reference``); then the calibrated diagnosis (noise-only and power replicates, ``gap.calibration``).
-With ``--solver-reference`` every run is repeated with the per-direction batched solver alone
-(``neckstrength.gap.fit.FUSED_SOLVER = False``, the solver before the compiled all-direction pass of
-``neckstrength.wrench.fused``) as the reference timed in the same run, and the two runs' summaries are compared
-(decision, p-values, gaps: equal up to solver rounding, 1e-6).
+With ``--fused`` every run is repeated with the compiled all-direction solver pass of ``neckstrength.wrench.fused``
+(``neckstrength.gap.fit.FUSED_SOLVER = True``; off by default), timed against the default per-direction batched
+solver in the same run, and the two runs' summaries are compared (decision, p-values, gaps: 1e-6).
 Prints wall and CPU seconds per stage (CPU of the main process and of the worker processes) and the machine load
 (``os.getloadavg``), and writes them as JSON. Timings on a shared machine are only comparable as ratios within one
 run.
@@ -17,7 +16,7 @@ Run from the repository root::
 
     .venv/bin/python benchmarks/bench_gap.py                                  # s3m24, S003, full config
     .venv/bin/python benchmarks/bench_gap.py --dataset S005 --reference --out bench_gap.json
-    .venv/bin/python benchmarks/bench_gap.py --workers 2 --solver-reference   # fused pass vs per-direction solver
+    .venv/bin/python benchmarks/bench_gap.py --workers 2 --fused     # the fused pass against the default solver
 """
 
 from __future__ import annotations
@@ -31,7 +30,7 @@ from dataclasses import replace
 
 
 def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: bool, effects=None,
-        workers: int = 1, solver_reference: bool = False) -> dict:
+        workers: int = 1, fused: bool = False) -> dict:
     import neckstrength.gap.fit as fitmod
     from neckstrength.config import build_directions, diagnosis_settings, gap_blind_dataset, gap_context, load_config
     from neckstrength.gap.diagnose import diagnose
@@ -51,10 +50,11 @@ def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: boo
                                                    fit=replace(s.fit, exact_gradient=False))))
     if calibrate and s.calibration.replicates > 0:
         runs.append(("calibrated", s))
-    if solver_reference:
-        runs = runs + [(tag + "_reference_solver", st) for tag, st in runs]
+    if fused:
+        runs = runs + [(tag + "_fused", st) for tag, st in runs]
+    default = fitmod.FUSED_SOLVER
     for tag, st in runs:
-        fitmod.FUSED_SOLVER = not tag.endswith("_reference_solver")
+        fitmod.FUSED_SOLVER = tag.endswith("_fused") or default
         t0, c0, l0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
         k0 = os.times().children_user + os.times().children_system
         stages = []
@@ -73,12 +73,12 @@ def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: boo
         print(f"{tag}: {out[tag]['wall_s']:.0f} s wall, {out[tag]['cpu_s']:.0f} s CPU (+ "
               f"{out[tag]['cpu_workers_s']:.0f} s in worker processes), load "
               f"{l0:.1f} -> {out[tag]['load_after']:.1f}: {d.summary.get('decision')}", flush=True)
-    fitmod.FUSED_SOLVER = True
-    if solver_reference:
+    fitmod.FUSED_SOLVER = default
+    if fused:
         for tag, _ in runs:
-            if tag.endswith("_reference_solver"):
+            if tag.endswith("_fused"):
                 continue
-            a, b = out[tag], out[tag + "_reference_solver"]
+            a, b = out[tag + "_fused"], out[tag]
             cpu_a, cpu_b = a["cpu_s"] + a["cpu_workers_s"], b["cpu_s"] + b["cpu_workers_s"]
             diffs = _differences(a, b)
             out[tag + "_solver_ratio_cpu"] = cpu_b / cpu_a
@@ -120,11 +120,11 @@ def main() -> None:
     ap.add_argument("--effects", default=None, help="comma-separated effects (default: config gap.effects)")
     ap.add_argument("--out", default=None, help="JSON file for the timings")
     ap.add_argument("--workers", type=int, default=1, help="processes for the calibration's screen")
-    ap.add_argument("--solver-reference", action="store_true",
-                    help="also time every run with the per-direction solver alone (gap.fit.FUSED_SOLVER = False)")
+    ap.add_argument("--fused", action="store_true",
+                    help="also time every run with the compiled all-direction pass (gap.fit.FUSED_SOLVER = True)")
     a = ap.parse_args()
     res = run(a.config, a.model, a.dataset, a.reference, not a.no_calibration,
-              a.effects.split(",") if a.effects else None, a.workers, a.solver_reference)
+              a.effects.split(",") if a.effects else None, a.workers, a.fused)
     if a.out:
         with open(a.out, "w") as fh:
             json.dump(res, fh, indent=2)
