@@ -149,12 +149,22 @@ def decision_lines(session) -> list[str]:
         f"heuristic); prior prevalence {s.prevalence:.0%} (clinician.decision.prevalence)",
         f"  depends on: deficit = each side at {lo:.0%}-{hi:.0%} of normal (uniform), normal = at least "
         f"{hi:.0%}; every muscle varies with sd {s.population_sd:.0%}; noise {s.noise:.0%} ({s.noise_source}); "
-        f"{s.n_candidates} candidates per hypothesis"
-        + (f"; best fit {h['misfit_rms']:.0%} RMS" if np.isfinite(h["misfit_rms"]) else ""),
-    ] + ([f"  WARNING: no strength vector of the model fits these forces better than {h['misfit_rms']:.0%} RMS, "
-          f"more than {s.misfit_factor:g} x the {s.noise:.0%} noise: the Bayes factor then says which hypothesis "
-          f"misfits less, not whether the muscle is weak (docs/clinician.md; the gap diagnosis says where the "
-          f"model misses)"] if h["decision"] == "model misfit" else []) + [decision_p_label(dec)]
+        f"{s.n_candidates} candidates per hypothesis",
+        f"  {misfit_text(h, s)}",
+    ] + ([f"  WARNING: no strength vector of the model fits these forces better than {h['misfit_rms']:.1%} RMS, "
+          f"above the guard's threshold {h.get('misfit_threshold', float('nan')):.1%}: the Bayes factor then says "
+          f"which hypothesis misfits less, not whether the muscle is weak (docs/clinician.md; the gap diagnosis "
+          f"says where the model misses)"] if h["decision"] == "model misfit" else []) + [decision_p_label(dec)]
+
+
+def misfit_text(h: dict, s) -> str:
+    """The misfit guard's line of a decision history row (calibrated or heuristic, with its threshold); rows of an
+    older log without the guard's fields get the heuristic rule's wording."""
+    if h.get("misfit_label"):
+        return str(h["misfit_label"])
+    rms = h.get("misfit_rms", float("nan"))
+    return (f"misfit guard: best fit {rms:.1%} RMS; heuristic ({s.misfit_factor:g} x the {s.noise:.0%} noise)"
+            if np.isfinite(rms) else "misfit guard: not checked yet")
 
 
 def decision_p_label(dec) -> str:
