@@ -1280,11 +1280,10 @@ def max_wrench_batched_arrays(R: np.ndarray, JT: np.ndarray, F: np.ndarray, U: n
 
 
 #: Calls with at most this many strength vectors use the compiled all-direction pass when the cache has
-#: ``fused=True``. Larger calls (the calibration's screen: many simulated data sets at once) amortise the
-#: per-direction solvers' bookkeeping over their rows and need more bases per direction at once than the pass keeps
-#: (``fused.CAPACITY``): with 4,096 here a calibrated participant took 113 s CPU against 167 s without the pass,
-#: where its fits alone took 19 s against 53 s.
-FUSED_MAX_ROWS = 256
+#: ``fused=True`` (larger calls amortise the per-direction solvers' bookkeeping over their rows). The calibration's
+#: screen (hundreds of rows per call) gains from the pass too: a calibrated participant (S003) took 123.6 s CPU with
+#: 256 here against 115.3 s with 4,096 and 166.8 s without the pass.
+FUSED_MAX_ROWS = 4096
 
 
 def _fused_call(cache: BasisCache, R, JT, F, U, lbs, ubs, rkey, return_alpha):
