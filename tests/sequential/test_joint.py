@@ -169,3 +169,35 @@ def test_criteria_choose_informative_first_test(setup):
     assert t1["score"].max() > 0 and t2["score"].max() > 0
     with pytest.raises(ValueError, match="unknown criterion"):
         post.propose("bogus", np.random.default_rng(0))
+
+
+def test_deferred_untested_wrenches_leave_the_chain_unchanged(setup):
+    """The untested directions' wrenches, deferred after a resample-move until read (JointPosterior.defer_untested),
+    are speed only: through tempered updates (several resample-moves per test), a proposal read in between, and a
+    snapshot / restore, candidates, wrenches, weights and proposals equal those of the reference that solves them
+    after every move, to the solver's rounding; and the deferral skipped LPs."""
+    _, data, _ = setup
+    forces = {d: 1.4 * data.forces[data.directions.index(d)] for d in data.directions}
+    runs = {}
+    for label, defer in (("reference", False), ("deferred", True)):
+        post = _post(setup, n=2000, seed=11, resample_ess=0.7, max_resamples=4)
+        post.defer_untested = defer
+        props = []
+        for k, d in enumerate(data.directions[:5]):
+            if k == 2:
+                snap = post.snapshot()
+                post.update(d, 0.7 * forces[d])       # undone: restore must bring back the deferred state too
+                post.restore(snap)
+            post.update(d, forces[d])
+            if k in (1, 3):                            # the criterion reads every untested column
+                props.append(post.propose("joint_eig", np.random.default_rng(0))[1]["score"].to_numpy())
+        runs[label] = post, props
+    (ref, ref_props), (post, props) = runs["reference"], runs["deferred"]
+    assert ref.n_resamples > 5 and ref.n_resamples == post.n_resamples, ref.n_resamples   # > 1 per test: tempering
+    np.testing.assert_allclose(post.F, ref.F, rtol=1e-12)
+    np.testing.assert_allclose(post.weights(), ref.weights(), rtol=1e-9, atol=1e-15)
+    lps_before_read = post.n_lps
+    np.testing.assert_allclose(post.W, ref.W, rtol=1e-9, atol=1e-9)
+    for a, b in zip(props, ref_props):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+    assert lps_before_read < ref.n_lps, (lps_before_read, ref.n_lps)

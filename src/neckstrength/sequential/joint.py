@@ -143,6 +143,41 @@ class JointPosterior:
         self.W = self._wrenches(self.F)
         self.loglik = np.zeros(len(self.F))
 
+    # -- the candidates' wrenches, the untested directions solved when first read
+    #: defer the untested directions' wrenches after a resample-move until something reads them (:attr:`W`: the
+    #: proposal's criterion, a new test's column): a test brought in by tempering resamples several times and only
+    #: the last candidates' untested wrenches are ever read. False: solved after every move (the reference of
+    #: tests/sequential/test_joint.py; the same numbers, to the solver's rounding)
+    defer_untested = True
+
+    @property
+    def W(self) -> np.ndarray:
+        """Max wrenches (N x K) of the candidates in every direction (the deferred columns solved on first read)."""
+        self._fresh_cols(None)
+        return self._W
+
+    @W.setter
+    def W(self, value: np.ndarray) -> None:
+        self._W = value
+        self._stale = np.zeros(0, int)          # columns of _W not yet solved for the current candidates
+        self._uid = None                        # per candidate: equal ids are copies of one candidate (solved once)
+
+    def _fresh_cols(self, cols) -> None:
+        """Solve the deferred columns among ``cols`` (all if None) for the current candidates, once per distinct
+        candidate (copies of one candidate share its row, as in :meth:`_move`)."""
+        stale = getattr(self, "_stale", None)
+        if stale is None or not len(stale):
+            return
+        todo = stale if cols is None else np.intersect1d(stale, np.atleast_1d(np.asarray(cols, int)))
+        if not len(todo):
+            return
+        if self._uid is None:
+            self._W[:, todo] = self._wrenches(self.F, todo)[:, todo]
+        else:
+            _, first, inv = np.unique(self._uid, return_index=True, return_inverse=True)
+            self._W[:, todo] = self._wrenches(self.F[first], todo)[:, todo][inv.ravel()]
+        self._stale = np.setdiff1d(stale, todo)
+
     # -- densities
     def _draw_prior(self, n: int) -> np.ndarray:
         """``n`` draws from the prior p_0 (a subclass with another prior overrides this and :meth:`log_prior`)."""
@@ -255,7 +290,9 @@ class JointPosterior:
         """The state an :meth:`update` changes (candidates, weights, tests, counters, evidence, random state)."""
         import copy
 
-        return {"F": self.F.copy(), "ancestor": self.ancestor.copy(), "W": self.W.copy(), "log_iw": self.log_iw.copy(),
+        return {"F": self.F.copy(), "ancestor": self.ancestor.copy(), "W": self._W.copy(),
+                "W_stale": self._stale.copy(), "W_uid": None if self._uid is None else self._uid.copy(),
+                "log_iw": self.log_iw.copy(),
                 "loglik": self.loglik.copy(), "tests": [dict(t) for t in self.tests], "n_resamples": self.n_resamples,
                 "n_lps": self.n_lps, "last_acceptance": self.last_acceptance, "log_evidence": self.log_evidence,
                 "log_evidence_var": self.log_evidence_var, "rng": copy.deepcopy(self.rng.bit_generator.state)}
@@ -263,6 +300,7 @@ class JointPosterior:
     def restore(self, s: dict) -> None:
         """Back to a :meth:`snapshot` (undo-then-measure equals a replay of the remaining measurements)."""
         self.F, self.W, self.log_iw, self.loglik = s["F"], s["W"], s["log_iw"], s["loglik"]
+        self._stale, self._uid = s.get("W_stale", np.zeros(0, int)), s.get("W_uid")
         self.ancestor, self.tests = s["ancestor"], s["tests"]
         self.n_resamples, self.n_lps, self.last_acceptance = s["n_resamples"], s["n_lps"], s["last_acceptance"]
         self.log_evidence, self.log_evidence_var = s["log_evidence"], s["log_evidence_var"]
@@ -280,7 +318,10 @@ class JointPosterior:
             raise ValueError(f"measured force must be positive, got {force!r}")
         bounds = activation_bounds(activations, self.model.muscle_names, self.settings.emg_band)
         if bounds is not None:
-            self.W[:, i] = self._bounded(self.F, i, bounds)
+            self._W[:, i] = self._bounded(self.F, i, bounds)
+            self._stale = self._stale[self._stale != i]
+        else:
+            self._fresh_cols([i])
         self.tests.append({"i": i, "w_meas": w_meas, "force": float(force), "bounds": bounds, "phi": 0.0})
         self._temper_in(self.tests[-1])
         return self.estimate()
@@ -297,7 +338,7 @@ class JointPosterior:
         thr = self.settings.resample_ess
         for _ in range(self.settings.max_resamples):
             base = self.log_iw + self._loglik_all(exclude=t)
-            new = self._test_loglik(self.W[:, t["i"]], t["w_meas"])
+            new = self._test_loglik(self._W[:, t["i"]], t["w_meas"])
             if self._ess_of(base + new) >= thr:
                 t["phi"] = 1.0
                 break
@@ -344,7 +385,7 @@ class JointPosterior:
         out = np.zeros(len(self.F))
         for t in self.tests:
             if t is not exclude and t["phi"] > 0:
-                out += t["phi"] * self._test_loglik(self.W[:, t["i"]], t["w_meas"])
+                out += t["phi"] * self._test_loglik(self._W[:, t["i"]], t["w_meas"])
         return out
 
     def resample(self) -> None:
@@ -393,9 +434,10 @@ class JointPosterior:
         w = self.weights()
         _, C = self._log_moments(w)
         idx = np.minimum(np.searchsorted(np.cumsum(w), self.rng.random(N) * w.sum(), side="right"), N - 1)
-        F, W = self.F[idx], self.W[idx]
+        F, W = self.F[idx], self._W[idx]
         self.ancestor = self.ancestor[idx]
-        origin = idx.copy()                   # rows with the same origin are copies of one candidate
+        # rows with the same origin are copies of one candidate (deferred columns: of one candidate before too)
+        origin = idx.copy() if self._uid is None or not len(self._stale) else self._uid[idx]
         tested = self._tested_cols()
         logt = self.log_prior(F) + self._loglik_all_for(W)
         L = np.linalg.cholesky((2.38 ** 2 / m) * C)
@@ -417,10 +459,12 @@ class JointPosterior:
             acc += int(a.sum())
         self.last_acceptance = acc / (N * n_moves)
         rest = np.setdiff1d(np.arange(W.shape[1]), tested)
-        if len(rest):                         # the untested directions, once per distinct candidate
-            _, first, inv = np.unique(origin, return_index=True, return_inverse=True)
-            W[:, rest] = self._wrenches(F[first], rest)[:, rest][inv.ravel()]
         self.F, self.W = F, W
+        if len(rest):                         # the untested directions, once per distinct candidate
+            # compact ids (0 .. distinct - 1 < N): the next move's new ids, from N on, cannot collide with them
+            self._stale, self._uid = rest, np.unique(origin, return_inverse=True)[1].ravel()
+            if not self.defer_untested:
+                self._fresh_cols(rest)
         self.loglik = self._loglik_all()
         self.log_iw = -self.loglik            # equal weights: the candidates are draws from the current target
 
