@@ -152,7 +152,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 description="The README's reproduction row, from scorecard_summary.csv.")
     p.add_argument("--summary", action="append", help="scorecard_summary.csv of a run (repeatable; default "
                    "results/report/scorecard_summary.csv)")
-    p.add_argument("--config", action="append", required=True,
+    p.add_argument("--config", dest="config_files", action="append", required=True,
                    help="the config file the run used, as in 'snakemake --configfile' (one per --summary)")
     p.add_argument("--date", action="append", help="date of the run, YYYY-MM-DD (one per --summary; default: "
                    "the date the summary was written, UTC)")
@@ -168,7 +168,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     g.add_argument("--check", action="store_true", help="exit 1 when the README's row differs")
     a = p.parse_args(argv)
     summaries = a.summary or ["results/report/scorecard_summary.csv"]
-    if len(a.config) != len(summaries) or (a.date and len(a.date) != len(summaries)):
+    if len(a.config_files) != len(summaries) or (a.date and len(a.date) != len(summaries)):
         p.error("give one --config (and one --date, if any) per --summary")
     if a.keep:
         if len(summaries) != 1 or a.write or a.check:
@@ -177,11 +177,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if dest.exists() and provenance(dest) is None and not a.force:
             p.error(f"--keep: {dest} exists and is not a kept summary; give --force to overwrite it")
         date = a.date[0] if a.date else _file_date(Path(summaries[0]))
-        keep_summary(summaries[0], dest, a.config[0], a.command, a.commit or _git_commit(), date)
-        print(f"{dest}: kept {summaries[0]} ({a.config[0]}, run {date})")
+        keep_summary(summaries[0], dest, a.config_files[0], a.command, a.commit or _git_commit(), date)
+        print(f"{dest}: kept {summaries[0]} ({a.config_files[0]}, run {date})")
         return 0
     runs = []
-    for k, (s, c) in enumerate(zip(summaries, a.config)):
+    for k, (s, c) in enumerate(zip(summaries, a.config_files)):
         prov = provenance(s)
         if prov and prov["config"] != c:
             p.error(f"{s} was produced with {prov['config']}, not {c}")
