@@ -24,11 +24,7 @@ GLOBAL_STATE = {"seed", "rand", "randn", "randint", "random", "random_sample", "
                 "normal", "uniform", "standard_normal", "integers", "lognormal", "exponential", "poisson", "binomial",
                 "get_state", "set_state"}
 #: (file, name) allowed for now, each with its reason
-ALLOWED = {
-    ("session/state.py", "default_rng"):
-        "np.random.default_rng(ss) of a registry SeedSequence ('session/{model}'); session/ was being edited by "
-        "another change when the registry landed: replace with seeds.generator(ss)",
-}
+ALLOWED: dict[tuple[str, str], str] = {}
 
 
 def _py_files():

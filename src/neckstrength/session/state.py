@@ -39,7 +39,7 @@ import numpy as np
 import pandas as pd
 
 from neckstrength.errors import InputError
-from neckstrength.seeds import derive_rng, seed_sequence
+from neckstrength.seeds import derive_rng, generator, seed_sequence
 from neckstrength.sequential.algorithms import (
     Proposal,
     SequentialState,
@@ -290,7 +290,7 @@ class Session:
             self.decision = self._decision(cs)
             return
         ss = seed_sequence(self.seed, f"session/{opts.model}")
-        F = sample_prior(self.f0, s.prior_sd_rel, s.n_candidates, np.random.default_rng(ss))
+        F = sample_prior(self.f0, s.prior_sd_rel, s.n_candidates, generator(ss))
         grid = StrengthGrid.around(self.f0, s.prior_sd_rel, s.n_bins, s.bin_range_sd)
         self.key = sim_key(SimpleNamespace(F=F, U=U, grid=grid, iw=np.ones(len(F))))
         cache_dir = Path(opts.cache) if opts.cache else Path("results") / "session_cache"
