@@ -606,6 +606,28 @@ def session_defaults(config: Mapping, model_name: str) -> dict:
     return dict(config.get("clinician", {}).get("session", {}).get(model_name, {}))
 
 
+def session_stage(config: Mapping, opts):
+    """A clinician session's settings and inputs (:class:`neckstrength.session.settings.SessionSettings`,
+    :class:`neckstrength.session.stage.SessionInputs`) for its options ``opts``
+    (:class:`~neckstrength.session.state.SessionOptions`: the model and ``--postures``): built once here, so the
+    session engine reads neither the config nor the model files."""
+    from neckstrength.session.render import where_to_push
+    from neckstrength.session.settings import resolve_postures
+    from neckstrength.session.stage import SessionInputs
+
+    cs = session_settings(config, opts.model)
+    postures = resolve_postures(opts.postures, list(cs.postures))
+    full = full_model_from_config(config)
+    model = model_from_config(full, config, opts.model)
+    d, U = model_directions_table(model, build_directions(config))
+    pset = None
+    if postures is not None:
+        from neckstrength.postures import build_posture_set, load_posture_tables
+
+        pset = build_posture_set(full, model, load_posture_tables(cs.model_dir, postures), postures, cs.force_length)
+    return cs, SessionInputs(model, d, U, where_to_push(d, cs.test_point_spec), postures, pset)
+
+
 # --- the sim-to-real gap diagnosis ---------------------------------------------------------------------------
 
 

@@ -11,6 +11,8 @@ undoes or stops.
 - :mod:`.log`     :class:`SessionLog`: the append-only, hash-chained, fsync'd log and the folder lock
 - :mod:`.state`   :class:`Session`, the engine (no terminal I/O): ``create``/``resume``, ``propose``, ``tell``,
   ``undo``, ``stop``, ``snapshot`` (a JSON-serialisable dict of everything a screen shows); :class:`SessionOptions`
+- :mod:`.stage`   :class:`SessionInputs` (built with the settings by :func:`neckstrength.config.session_stage`),
+  :class:`SessionResult` (:meth:`Session.result`, in memory) and :func:`write_session` (the files a stop writes)
 - :mod:`.render`  text screens (:func:`~.render.screen`, :func:`bar_chart`, :func:`where_to_push`)
 - :mod:`.plots`   the summary figure
 - :mod:`.repl`    the terminal: :func:`run_interactive` and the CSV replay (:func:`replay_csv`, :func:`replay_into`),
@@ -31,6 +33,7 @@ from neckstrength.session.parse import (
 from neckstrength.session.plots import summary_figure
 from neckstrength.session.render import HELP, MIN_MC_CLUSTERS, bar_chart, where_to_push
 from neckstrength.session.repl import replay_csv, replay_into, run_interactive
+from neckstrength.session.stage import SessionInputs, SessionResult, write_session
 from neckstrength.session.state import (
     CRITERIA,
     MODELS,
@@ -47,5 +50,5 @@ __all__ = [
     "parse_activations", "parse_entry", "parse_force", "parse_priorities", "read_measurements_csv", "summary_figure",
     "HELP", "MIN_MC_CLUSTERS", "bar_chart", "where_to_push", "replay_csv", "replay_into", "run_interactive",
     "CRITERIA", "MODELS", "Session", "SessionOptions", "emg_choices", "resolve_emg_channels", "resolve_postures",
-    "session_threads",
+    "session_threads", "SessionInputs", "SessionResult", "write_session",
 ]

@@ -11,7 +11,17 @@ so identical entries give identical numbers:
 - :meth:`Session.tell`      an :class:`~neckstrength.session.parse.Entry` or a prompt line -> the acknowledged
   record, written and fsync'd to the log before the estimate changes and before it returns;
 - :meth:`Session.undo`, :meth:`Session.stop`   the same for undo and stop (stop writes the summary files);
-- :meth:`Session.snapshot`  everything a screen shows, as a plain JSON-serialisable dict.
+- :meth:`Session.snapshot`  everything a screen shows, as a plain JSON-serialisable dict;
+- :meth:`Session.result`    the session's result so far in memory (:class:`~neckstrength.session.stage.SessionResult`),
+  which :func:`~neckstrength.session.stage.write_session` writes (a stop does).
+
+As a stage (issue 33): the settings (:class:`~neckstrength.session.settings.SessionSettings`) and inputs (the model,
+its directions, where to push, the posture models: :class:`~neckstrength.session.stage.SessionInputs`) are built once
+by :func:`neckstrength.config.session_stage` when a session is created or resumed; the engine reads no config and no
+model file. Its posterior is :class:`~neckstrength.sequential.joint.JointPosterior` (through
+:class:`~neckstrength.sequential.joint_state.JointState`, which adds undo), the engine of ``neckstrength estimate
+--method joint`` too, and its decision :class:`~neckstrength.sequential.decision.DeficitDecision`, the decision
+study's.
 
 Choices the thesis does not make (docs/session.md): the prior is ``N(a f'_base, (0.3 a f'_base)^2)`` with ``a`` a
 session option (default 1) because Sec. 6.5.1's ``a`` needs every measurement up front; the stop recommendation
@@ -39,6 +49,7 @@ import numpy as np
 import pandas as pd
 
 from neckstrength.errors import InputError
+from neckstrength.postures.model import pair_label, split_label
 from neckstrength.seeds import derive_rng, generator, seed_sequence
 from neckstrength.sequential.algorithms import (
     Proposal,
@@ -52,7 +63,8 @@ from neckstrength.sequential.algorithms import (
 from neckstrength.session import render
 from neckstrength.session.log import HEADER, LOG, SessionLog, effective_entries
 from neckstrength.session.parse import Entry, _check_direction, parse_entry
-from neckstrength.session.plots import summary_figure
+from neckstrength.session.settings import SessionSettings, resolve_postures  # noqa: F401  (re-exported)
+from neckstrength.session.stage import SessionInputs, SessionResult, write_session
 
 MODELS = ("p2m7", "s3m24", "p3m12")
 
@@ -98,28 +110,6 @@ def session_threads(threads: int | None) -> int:
     if int(threads) < 0:
         raise ValueError(f"--threads: {threads!r} must be >= 0 (0 = every core)")
     return int(threads)
-
-
-def resolve_postures(spec: str | Sequence[str] | None, known: Sequence[str]) -> list[str] | None:
-    """``--postures`` -> the session's postures, neutral first; None for neutral only (the default session).
-    ``spec``: a comma-separated string or a list; ``'all'`` = every posture of ``known`` (config postures.postures)."""
-    if spec is None:
-        return None
-    items = [x.strip() for x in (spec.split(",") if isinstance(spec, str) else spec)]
-    items = [x for x in items if x]
-    if not items:
-        raise ValueError(f"--postures: no posture given; allowed: all, {', '.join(known)}")
-    if items == ["all"]:
-        items = list(known)
-    out = ["neutral"]
-    for x in items:
-        if x not in known:
-            close = difflib.get_close_matches(x, list(known), n=1)
-            hint = f" (did you mean {close[0]}?)" if close else ""
-            raise ValueError(f"--postures: unknown posture '{x}'{hint}; allowed: all, {', '.join(known)}")
-        if x not in out:
-            out.append(x)
-    return None if out == ["neutral"] else out
 
 
 def emg_choices(muscles: Sequence[str], surface_groups: Sequence[str], deep: Sequence[int]) -> dict:
@@ -185,7 +175,8 @@ class Session:
     """One participant's session in folder ``out`` (header, log, outputs).
 
     Open one with :meth:`create` (a new folder) or :meth:`resume` (an existing one), not with the constructor
-    (which writes no header). ``progress``: a callback for what the engine is doing while it builds the candidates
+    (which writes no header; it takes the ``settings`` and ``inputs`` that :func:`neckstrength.config.session_stage`
+    builds from ``opts``, and reads nothing else). ``progress``: a callback for what the engine is doing while it builds the candidates
     (silent when None); ``threads``: the joint posterior's solver threads (the numbers do not depend on it).
     """
 
@@ -195,23 +186,13 @@ class Session:
     one_blas_thread = True
     concurrent_decision = True
 
-    def __init__(self, out: str | Path, opts: SessionOptions, progress: Callable[[str], None] | None = None,
-                 threads: int | None = None):
-        from neckstrength.config import (
-            build_directions,
-            full_model_from_config,
-            load_config,
-            model_from_config,
-            session_settings,
-        )
-        from neckstrength.estimation.datasets import model_directions_table
-
+    def __init__(self, out: str | Path, opts: SessionOptions, settings: SessionSettings, inputs: SessionInputs,
+                 progress: Callable[[str], None] | None = None, threads: int | None = None):
         self.out = Path(out)
         self.progress = progress = progress or _silent
         self.threads = session_threads(threads)     # not in the header: the numbers do not depend on it
-        cfg = load_config(opts.config)
-        self.config_settings = cs = session_settings(cfg, opts.model)
-        postures = resolve_postures(opts.postures, list(cs.postures))
+        self.config_settings = cs = settings
+        postures = inputs.postures
         cost = float(opts.posture_change_cost)
         if not np.isfinite(cost) or cost < 0:
             raise ValueError(f"--posture-change-cost: {opts.posture_change_cost!r} must be >= 0 (nats)")
@@ -233,8 +214,7 @@ class Session:
         self.criterion = crit
         self.joint = crit != "thesis"
         self.deficit = cs.deficit
-        full = full_model_from_config(cfg)
-        self.model = model_from_config(full, cfg, opts.model)
+        self.model = inputs.model
         self.muscles = list(self.model.muscle_names)
         unknown = set(opts.priorities) - set(self.muscles)
         if unknown:
@@ -245,19 +225,15 @@ class Session:
             raise ValueError("muscle priorities (Eq. 6.8) need --criterion marginal_entropy or thesis; joint_eig "
                              "scores the information about all muscles together")
         self.settings = replace(cs.joint if self.joint else cs.sequential, **over)
-        d, U = model_directions_table(self.model, build_directions(cfg))
+        d, U = inputs.directions, inputs.U
         self.U = U
         self.dirtable = d
         self.directions = list(d["name"])
         self.base_directions = list(self.directions)
-        self.push = render.where_to_push(d, cs.test_point_spec)
+        self.push = inputs.push
         self.force_scale = d["force_scale"].to_numpy(float)
-        self.pset = None
+        self.pset = inputs.pset
         if postures is not None:                # tests = (posture, direction) pairs, labelled posture:direction
-            from neckstrength.postures import build_posture_set, load_posture_tables, pair_label
-
-            tables = load_posture_tables(cs.model_dir, postures)
-            self.pset = build_posture_set(full, self.model, tables, postures, cs.force_length)
             self.test_postures = [p for p in postures for _ in self.base_directions]
             self.directions = [pair_label(p, n) for p in postures for n in self.base_directions]
             self.U = np.vstack([U] * len(postures))
@@ -422,6 +398,16 @@ class Session:
         return h
 
     @classmethod
+    def _open(cls, out: Path, opts: SessionOptions, progress: Callable[[str], None] | None,
+              threads: int | None) -> "Session":
+        """The engine for ``opts``: its settings and inputs built once from ``opts.config``
+        (:func:`neckstrength.config.session_stage`)."""
+        from neckstrength.config import load_config, session_stage
+
+        settings, inputs = session_stage(load_config(opts.config), opts)
+        return cls(out, opts, settings, inputs, progress, threads)
+
+    @classmethod
     def create(cls, out: str | Path, opts: SessionOptions, progress: Callable[[str], None] | None = None,
                threads: int | None = None) -> "Session":
         """A new session in folder ``out`` (created; refused when it already holds a session): builds the candidates
@@ -436,7 +422,7 @@ class Session:
         if (out / LOG).exists() or (out / HEADER).exists():
             raise FileExistsError(f"{out} already holds a session; use `neckstrength session resume --out {out}`")
         out.mkdir(parents=True, exist_ok=True)
-        s = cls(out, opts, progress, threads)
+        s = cls._open(out, opts, progress, threads)
         tmp = out / (HEADER + ".tmp")
         tmp.write_text(json.dumps(s.header(), indent=2, sort_keys=True))
         os.replace(tmp, out / HEADER)
@@ -455,7 +441,7 @@ class Session:
         h = json.loads((out / HEADER).read_text())
         o = dict(h["options"])
         o.setdefault("criterion", "thesis")     # sessions started before the joint posterior: the thesis's scheme
-        s = cls(out, SessionOptions(**o), progress, threads)
+        s = cls._open(out, SessionOptions(**o), progress, threads)
         if s.key != h["sim_key"]:
             raise ValueError(f"{out}: the candidate set differs from the one the session started with (key "
                              f"{h['sim_key']}, now {s.key}); the config or the package changed")
@@ -731,10 +717,8 @@ class Session:
         """Log ``stop`` and write ``summary.csv``, ``summary.png``, ``steps.csv`` and ``measurements.csv``; returns
         :meth:`tell`'s answer with ``"outputs"`` (their paths). A stopped session can be resumed and continued."""
         msg, rec = self._accept(Entry("stop"))
-        csv, png = self.write_summary()
-        return {"record": rec, "message": msg,
-                "outputs": {"summary_csv": str(csv), "summary_png": str(png), "steps_csv": str(self.out / "steps.csv"),
-                            "measurements_csv": str(self.out / "measurements.csv")}}
+        paths = write_session(self.result(), self.out)
+        return {"record": rec, "message": msg, "outputs": {k: str(v) for k, v in paths.items()}}
 
     @_one_blas_thread
     def predicted_forces(self, tests: Sequence[str]) -> np.ndarray:
@@ -838,8 +822,6 @@ class Session:
 
     def split(self, label: str) -> tuple[str, str]:
         """(posture, direction) of a test label ('neutral' for a plain direction)."""
-        from neckstrength.postures.model import split_label
-
         return split_label(label)
 
     def default_posture(self) -> str:
@@ -850,11 +832,10 @@ class Session:
         return self.split(prop)[0] if prop else self.state.post.current_posture
 
     @_one_blas_thread
-    def write_summary(self) -> tuple[Path, Path]:
-        """``summary.csv`` (estimate per muscle) and ``summary.png``; also ``steps.csv`` and ``measurements.csv``
-        (the measurements in order, in the format :func:`~neckstrength.session.repl.replay_csv` reads)."""
-        from neckstrength.io import atomic_write_csv
-
+    def result(self) -> SessionResult:
+        """The session's result so far, in memory (:class:`~neckstrength.session.stage.SessionResult`: the estimate
+        per muscle, the per-step trajectory, the measurements in order, their header lines); :meth:`stop` writes it
+        with :func:`~neckstrength.session.stage.write_session`."""
         e = self.estimate()
         hdr = [f"clinician session: participant {self.opts.participant}, model {self.model.name}, "
                f"{len(self.state.tested)} of {len(self.directions)} directions: {', '.join(self.state.tested)}",
@@ -870,7 +851,6 @@ class Session:
             hdr.append(f"deficit decision: {dec.decision()}, P(deficit) {dec.p_deficit():.3f} ({dec.p_label()}), "
                        f"log Bayes factor {dec.log_bf():+.2f} ± {dec.log_bf_se():.2f} (Monte Carlo, heuristic); "
                        f"{dec.settings.label()}; how well it decides: docs/clinician.md")
-        atomic_write_csv(e, self.out / "summary.csv", hdr, float_format="%.6g")
         # per-step trajectory (iteration 0 = prior)
         rows = []
         pdef = self.deficit_trend()
@@ -902,7 +882,6 @@ class Session:
             elif self.joint:
                 se = [h.get("p_deficit_se", np.nan) for h in self.state.history]
                 traj["p_deficit_mc_se"] = np.asarray(se)[traj["step"].to_numpy()]
-        atomic_write_csv(traj, self.out / "steps.csv", hdr[:2], float_format="%.6g")
         meas = [r for r in self.entries if r["action"] == "measure"]
         mdf = pd.DataFrame({"direction": [r["direction"] for r in meas], "force_N": [r["force_N"] for r in meas],
                             "activations": [",".join(f"{k}:{v:g}" for k, v in (r.get("activations") or {}).items())
@@ -911,11 +890,16 @@ class Session:
             pairs = [self.split(r["direction"]) for r in meas]
             mdf["direction"] = [d for _, d in pairs]
             mdf.insert(0, "posture", [p for p, _ in pairs])
-        atomic_write_csv(mdf, self.out / "measurements.csv", [f"measurements of session {self.out.name} "
-                                                              "(replay: neckstrength session replay --csv ...)"])
-        png = self.out / "summary.png"
-        summary_figure(traj, e, png, f"{self.opts.participant} · {self.model.name}")
-        return self.out / "summary.csv", png
+        return SessionResult(e, hdr, traj, mdf, [f"measurements of session {self.out.name} "
+                                                 "(replay: neckstrength session replay --csv ...)"],
+                             f"{self.opts.participant} · {self.model.name}")
+
+    def write_summary(self) -> tuple[Path, Path]:
+        """Write :meth:`result` (:func:`~neckstrength.session.stage.write_session`): ``summary.csv`` (estimate per
+        muscle) and ``summary.png``; also ``steps.csv`` and ``measurements.csv`` (the measurements in order, in the
+        format :func:`~neckstrength.session.repl.replay_csv` reads). Returns the paths of the first two."""
+        paths = write_session(self.result(), self.out)
+        return paths["summary_csv"], paths["summary_png"]
 
 
 def _plain(x):
