@@ -201,3 +201,22 @@ def test_deferred_untested_wrenches_leave_the_chain_unchanged(setup):
     for a, b in zip(props, ref_props):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
     assert lps_before_read < ref.n_lps, (lps_before_read, ref.n_lps)
+
+
+def test_a_snapshot_survives_its_restore(setup):
+    """restore() copies what it adopts: updates after a restore leave the snapshot as it was, so restoring it again
+    gives the same state (the same next update) as the first time."""
+    _, data, _ = setup
+    post = _post(setup, n=500, seed=5)
+    post.update(data.directions[0], data.forces[0])
+    snap = post.snapshot()
+    kept = {k: v.copy() for k, v in snap.items() if isinstance(v, np.ndarray)}
+    results = []
+    for _ in range(2):
+        post.restore(snap)
+        post.update(data.directions[1], 0.8 * data.forces[1])
+        results.append((post.F.copy(), post.weights().copy(), post.W.copy()))
+        for k, v in kept.items():
+            np.testing.assert_array_equal(snap[k], v, err_msg=k)
+    for a, b in zip(*results):
+        np.testing.assert_array_equal(a, b)

@@ -298,10 +298,12 @@ class JointPosterior:
                 "log_evidence_var": self.log_evidence_var, "rng": copy.deepcopy(self.rng.bit_generator.state)}
 
     def restore(self, s: dict) -> None:
-        """Back to a :meth:`snapshot` (undo-then-measure equals a replay of the remaining measurements)."""
-        self.F, self.W, self.log_iw, self.loglik = s["F"], s["W"], s["log_iw"], s["loglik"]
-        self._stale, self._uid = s.get("W_stale", np.zeros(0, int)), s.get("W_uid")
-        self.ancestor, self.tests = s["ancestor"], s["tests"]
+        """Back to a :meth:`snapshot` (undo-then-measure equals a replay of the remaining measurements). The arrays
+        are copied, so later updates (which write into them in place) leave the snapshot as it was."""
+        self.F, self.W, self.log_iw, self.loglik = s["F"].copy(), s["W"].copy(), s["log_iw"].copy(), s["loglik"].copy()
+        uid = s.get("W_uid")
+        self._stale, self._uid = s.get("W_stale", np.zeros(0, int)).copy(), None if uid is None else uid.copy()
+        self.ancestor, self.tests = s["ancestor"].copy(), [dict(t) for t in s["tests"]]
         self.n_resamples, self.n_lps, self.last_acceptance = s["n_resamples"], s["n_lps"], s["last_acceptance"]
         self.log_evidence, self.log_evidence_var = s["log_evidence"], s["log_evidence_var"]
         self.rng.bit_generator.state = s["rng"]
