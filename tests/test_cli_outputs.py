@@ -88,3 +88,14 @@ def test_failed_estimate_removes_the_folder_it_created(tmp_path, capsys):
     assert main(["estimate", "--measurements", A2, "--participant", "S999", "--model", "p2m7", "--out", str(kept),
                  "--config", CONFIG]) == 2
     assert kept.is_dir()
+
+
+@pytest.mark.parametrize("argv", [["max-wrench", "--model", "p2m7"], ["directions", "--out", "d.csv"],
+                                  ["diagnose", "--measurements", "m.csv", "--dataset", "S003"],
+                                  ["estimate", "--measurements", "m.csv", "--participant", "S003", "--out", "e"]])
+def test_a_missing_config_is_a_clean_error_in_every_verb(tmp_path, monkeypatch, capsys, argv):
+    # run outside the repository: the default config/config.yaml is not there
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "config file not found" in err and "Traceback" not in err

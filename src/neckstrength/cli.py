@@ -107,7 +107,7 @@ def _cmd_directions(args) -> int:
     from neckstrength.io import atomic_write_csv
     from neckstrength.model.geometry import DIRECTIONS_HEADER
 
-    atomic_write_csv(build_directions(load_config(args.config)), args.out, DIRECTIONS_HEADER)   # full precision
+    atomic_write_csv(build_directions(_config(args.config)), args.out, DIRECTIONS_HEADER)   # full precision
     print(f"wrote {args.out}")
     return 0
 
@@ -118,7 +118,7 @@ def _cmd_max_wrench(args) -> int:
     from neckstrength.wrench import solve
     from neckstrength.wrench.problem import STATUS_CODES
 
-    cfg = load_config(args.config)
+    cfg = _config(args.config)
     full = full_model_from_config(cfg)
     model = model_from_config(full, cfg, args.model)
     f = model.strengths.copy()
@@ -379,7 +379,7 @@ def _cmd_diagnose(args) -> int:
 
     from neckstrength.config import gap_measurements_path, gap_models
 
-    cfg = load_config(args.config)
+    cfg = _config(args.config)
     model = args.model or gap_models(cfg)[0]
     out = Path(args.out or f"results/gap/{model}/{args.dataset}")
     outputs = {k: out / f"{k}.csv" for k in DATASET_FILES}
