@@ -99,3 +99,16 @@ def test_a_missing_config_is_a_clean_error_in_every_verb(tmp_path, monkeypatch, 
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "config file not found" in err and "Traceback" not in err
+
+
+def test_max_wrench_prints_only_its_table_on_stdout():
+    # HiGHS writes a start-up banner from C to file descriptor 1 on the first solve of a process; the verb's
+    # stdout is its table alone (a fresh process, so the banner is not already spent)
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "neckstrength.cli", "max-wrench", "--model", "p2m7", "--direction",
+                        "back"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "HiGHS" not in r.stdout
+    assert r.stdout.splitlines()[0].startswith("model p2m7") and "back" in r.stdout

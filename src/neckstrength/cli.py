@@ -137,7 +137,8 @@ def _cmd_max_wrench(args) -> int:
         if not keep.any():
             raise SystemExit(f"no direction named {args.direction}; known: {', '.join(d['name'])}")
         d, U = d[keep].reset_index(drop=True), U[keep]
-    w, alpha, status = solve(model, f[None, :], U, method="highs")
+    with _stdout_to_stderr():  # HiGHS's start-up banner on stderr, the table on stdout
+        w, alpha, status = solve(model, f[None, :], U, method="highs")
     out = pd.DataFrame({"direction": d["name"], "wrench": w[0], "force_N": w[0] / d["force_scale"].to_numpy(),
                         "status": [STATUS_CODES[s] for s in status[0]]})
     print(f"model {model.name}: {model.m} muscles, {model.n} coordinates")
