@@ -77,6 +77,8 @@ def quality_figure(selected: pd.DataFrame, fatigue_dirs: pd.DataFrame, settings:
     for kept, mk in ((True, "o"), (False, "x")):
         for matched, col in ((True, "tab:blue"), (False, "tab:red")):
             sel = (main["kept"] == kept) & (main["matched"] == matched)
+            if not sel.any():   # no legend entry for a kind without trials
+                continue
             ax[0].scatter(ang[sel], main.loc[sel, "R_fm_error"], marker=mk, c=col, s=18,
                           label=f"{'kept' if kept else 'not kept'}, {'matched' if matched else 'not matched'}")
     ax[0].axvline(settings["angle_deg"], color="k", ls="--", lw=0.8)
@@ -95,7 +97,15 @@ def quality_figure(selected: pd.DataFrame, fatigue_dirs: pd.DataFrame, settings:
     if len(fatigue_dirs):
         piv = fatigue_dirs.pivot(index="direction", columns="participant", values="change_rel")
         piv = piv.reindex([d for d in CARDINAL if d in piv.index])
-        (100 * piv).plot.bar(ax=ax[2])
+        (100 * piv).plot.bar(ax=ax[2], legend=False)
+        vals = 100 * piv.to_numpy(dtype=float)
+        lo = min(np.nanmin(vals), -100 * settings["fatigue_threshold"], 0.0)
+        hi = max(np.nanmax(vals), 0.0)
+        span = (hi - lo) or 1.0
+        # headroom above the bars for the legend, so it never covers a bar
+        ax[2].set_ylim(lo - 0.05 * span, hi + 0.35 * span)
+        ax[2].legend(title="participant", loc="upper center", ncol=min(len(piv.columns), 4), fontsize=8,
+                     title_fontsize=8)
     ax[2].axhline(-100 * settings["fatigue_threshold"], color="r", ls="--", lw=0.8)
     ax[2].set_ylabel("end / start - 1 (%)")
     ax[2].set_title("Fatigue: cardinal directions, end vs start")
