@@ -110,8 +110,50 @@ class DecisionSettings:
                          if n in keep or (n.endswith(("-R", "-L")) and n[:-2] in keep)], dtype=int)
 
 
+class _FittedOnPatients:
+    """What :class:`DecisionCalibration` and :class:`MisfitGuard` share: both are fitted by the decision study on
+    simulated patients, hold only for the settings they were measured with, and are kept as one CSV row."""
+
+    _what = ""                                   # the name in error messages
+    _compared: tuple[str, ...] = ()              # DecisionSettings fields that must equal the measured ones
+
+    def _differences(self, model_name: str, settings: "DecisionSettings", n_directions: int,
+                     with_emg: bool) -> list[str]:
+        diff = []
+        if model_name != self.model:
+            diff.append(f"model {model_name}, measured on {self.model}")
+        for name in self._compared:
+            a, b = getattr(settings, name), getattr(self, name)
+            if (tuple(a) != tuple(b)) if isinstance(a, tuple) else not (a == b or (isinstance(a, float)
+                                                                                  and math.isclose(a, b))):
+                diff.append(f"{name} {a}, measured at {b}")
+        if n_directions != self.n_directions:
+            diff.append(f"{n_directions} test directions, measured with {self.n_directions}")
+        if with_emg:
+            diff.append("EMG entries, measured on forces only")
+        return diff
+
+    def _frame(self, **columns) -> pd.DataFrame:
+        from dataclasses import asdict
+
+        d = asdict(self)
+        d.update(columns)
+        return pd.DataFrame([d])
+
+    @classmethod
+    def _one_row(cls, df: pd.DataFrame, source: str) -> pd.Series:
+        from dataclasses import fields
+
+        need = [f.name for f in fields(cls) if f.name != "source"]
+        miss = [c for c in need if c not in df.columns]
+        if miss or len(df) != 1:
+            raise ValueError(f"{source or cls._what}: needs one row with columns {need}; missing {miss}, "
+                             f"rows {len(df)}")
+        return df.iloc[0]
+
+
 @dataclass(frozen=True)
-class DecisionCalibration:
+class DecisionCalibration(_FittedOnPatients):
     """A recalibration of the Bayes factor measured on simulated patients (Platt scaling, Platt 1999, with a bend).
 
     The decision study (:func:`neckstrength.sequential.decision_study.recalibrate`) fits, on a cohort whose truths are
@@ -145,6 +187,9 @@ class DecisionCalibration:
     check: str
     source: str = ""
 
+    _what = "decision calibration"
+    _compared = ("group", "deficit_range", "population_sd", "noise", "n_candidates", "sampler")
+
     def log_lr(self, log_bf: float) -> float:
         s = self.cohort_share
         return self.slope * log_bf + self.intercept + self.bend * math.tanh(log_bf / 2) - math.log(s / (1 - s))
@@ -160,41 +205,19 @@ class DecisionCalibration:
         diff = []
         if n_tests is not None and n_tests < self.t_from:
             diff.append(f"{n_tests} tests, recalibrated from the {self.t_from}th")
-        if model_name != self.model:
-            diff.append(f"model {model_name}, measured on {self.model}")
-        for name in ("group", "deficit_range", "population_sd", "noise", "n_candidates", "sampler"):
-            a, b = getattr(settings, name), getattr(self, name)
-            if (tuple(a) != tuple(b)) if isinstance(a, tuple) else not (a == b or (isinstance(a, float)
-                                                                                  and math.isclose(a, b))):
-                diff.append(f"{name} {a}, measured at {b}")
-        if n_directions != self.n_directions:
-            diff.append(f"{n_directions} test directions, measured with {self.n_directions}")
-        if with_emg:
-            diff.append("EMG entries, measured on forces only")
-        return "; ".join(diff)
+        return "; ".join(diff + self._differences(model_name, settings, n_directions, with_emg))
 
     def label(self) -> str:
         return (f"recalibrated on {self.n_patients} simulated patients ({self.model}, forces only, noise "
                 f"{self.noise:.0%}); check: {self.check}")
 
     def to_frame(self) -> pd.DataFrame:
-        from dataclasses import asdict
-
-        d = asdict(self)
-        d["group"] = "+".join(self.group)
-        d["deficit_range"] = f"{self.deficit_range[0]:g}-{self.deficit_range[1]:g}"
-        return pd.DataFrame([d])
+        return self._frame(group="+".join(self.group),
+                           deficit_range=f"{self.deficit_range[0]:g}-{self.deficit_range[1]:g}")
 
     @classmethod
     def from_frame(cls, df: pd.DataFrame, source: str = "") -> "DecisionCalibration":
-        from dataclasses import fields
-
-        need = [f.name for f in fields(cls) if f.name != "source"]
-        miss = [c for c in need if c not in df.columns]
-        if miss or len(df) != 1:
-            raise ValueError(f"{source or 'decision calibration'}: needs one row with columns {need}; "
-                             f"missing {miss}, rows {len(df)}")
-        r = df.iloc[0]
+        r = cls._one_row(df, source)
         lo, hi = (float(x) for x in str(r["deficit_range"]).split("-"))
         return cls(model=str(r["model"]), group=tuple(str(r["group"]).split("+")), deficit_range=(lo, hi),
                    population_sd=float(r["population_sd"]), noise=float(r["noise"]),
@@ -206,7 +229,7 @@ class DecisionCalibration:
 
 
 @dataclass(frozen=True)
-class MisfitGuard:
+class MisfitGuard(_FittedOnPatients):
     """The misfit guard calibrated on simulated patients (issue 31): is this best fit worse than the model's own
     patients' best fits at the stated noise?
 
@@ -237,6 +260,9 @@ class MisfitGuard:
     check: str
     source: str = ""
 
+    _what = "misfit guard"
+    _compared = ("noise", "n_candidates", "sampler")
+
     @property
     def t_max(self) -> int:
         return self.t_from + len(self.log_median) - 1
@@ -252,19 +278,7 @@ class MisfitGuard:
     def applies(self, model_name: str, settings: "DecisionSettings", n_directions: int, with_emg: bool = False,
                 several_postures: bool = False) -> str:
         """'' when the guard holds for a decision with these settings, else the reason it does not."""
-        diff = []
-        if model_name != self.model:
-            diff.append(f"model {model_name}, measured on {self.model}")
-        if not math.isclose(settings.noise, self.noise):
-            diff.append(f"noise {settings.noise}, measured at {self.noise}")
-        if settings.n_candidates != self.n_candidates:
-            diff.append(f"n_candidates {settings.n_candidates}, measured at {self.n_candidates}")
-        if settings.sampler != self.sampler:
-            diff.append(f"sampler {settings.sampler}, measured with {self.sampler}")
-        if n_directions != self.n_directions:
-            diff.append(f"{n_directions} test directions, measured with {self.n_directions}")
-        if with_emg:
-            diff.append("EMG entries, measured on forces only")
+        diff = self._differences(model_name, settings, n_directions, with_emg)
         if several_postures:
             diff.append("tests in several postures, measured in neutral only")
         return "; ".join(diff)
@@ -274,23 +288,11 @@ class MisfitGuard:
                 f"({self.n_patients} patients, {self.model}, noise {self.noise:.0%}); check: {self.check}")
 
     def to_frame(self) -> pd.DataFrame:
-        from dataclasses import asdict
-
-        d = asdict(self)
-        for k in ("log_median", "log_sd"):
-            d[k] = " ".join(f"{x:.8g}" for x in getattr(self, k))
-        return pd.DataFrame([d])
+        return self._frame(**{k: " ".join(f"{x:.8g}" for x in getattr(self, k)) for k in ("log_median", "log_sd")})
 
     @classmethod
     def from_frame(cls, df: pd.DataFrame, source: str = "") -> "MisfitGuard":
-        from dataclasses import fields
-
-        need = [f.name for f in fields(cls) if f.name != "source"]
-        miss = [c for c in need if c not in df.columns]
-        if miss or len(df) != 1:
-            raise ValueError(f"{source or 'misfit guard'}: needs one row with columns {need}; missing {miss}, "
-                             f"rows {len(df)}")
-        r = df.iloc[0]
+        r = cls._one_row(df, source)
         med, sd = (tuple(float(x) for x in str(r[k]).split()) for k in ("log_median", "log_sd"))
         if not med or len(med) != len(sd) or not all(np.isfinite(med + sd)) or min(sd) <= 0:
             raise ValueError(f"{source or 'misfit guard'}: log_median and log_sd must be equally many numbers "
