@@ -574,6 +574,8 @@ def decision_study_settings(config: Mapping, model_name: str):
     ck = {f.name for f in fields(CohortSettings)}
     cohort = CohortSettings(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items() if k in ck})
     rest = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items() if k not in ck}
+    if "patients_per_kind" in rest:             # {protocol: k} -> ((protocol, k), ...), hashable and ordered
+        rest["patients_per_kind"] = tuple((str(p), int(k)) for p, k in dict(rest["patients_per_kind"]).items())
     emg = tuple(config.get("chapter6", {}).get("emg_groups", {}).get(model_name, []))
     boot = str(config.get("chapter5", {}).get("bootstrap_direction", "back"))   # Algorithm 4's (alg4 protocol)
     study = DecisionStudySettings(cohort=cohort, emg_groups=emg if any("emg" in p for p in

@@ -570,6 +570,30 @@ def test_a_protocols_cache_signature_depends_on_what_its_runs_depend_on_only():
     assert sig(b, "alg4", "abc1") != sig(b, "alg4", "abc2") and sig(b, "forces", None) != sig(dc_replace(
         b, n_max=10), "forces", None)
     assert sig(a, "forces") != _protocol_signature(dc_replace(s, noise=0.08), a, js, 1, "s3m24", "forces", None)
+    # measuring fewer patients under a protocol keeps the runs it has (each run is one patient's own)
+    d = dc_replace(b, patients_per_kind=(("alg4", 3),))
+    assert sig(b, "alg4", "abc1") == sig(d, "alg4", "abc1") and sig(b, "forces") == sig(d, "forces")
+
+
+def test_patients_per_kind_measures_the_first_k_of_each_kind_under_a_protocol():
+    from neckstrength.config import decision_study_settings, load_config
+    from neckstrength.sequential.cohort import CohortSettings
+    from neckstrength.sequential.decision_study import DecisionStudySettings
+
+    st = DecisionStudySettings(cohort=CohortSettings(n_deficit=4, n_normal=3), protocols=("forces", "alg4"),
+                               patients_per_kind=(("alg4", 2), ("forces+postures", 9)))
+    assert st.participants("forces") == list(range(7))
+    assert st.participants("alg4") == [0, 1, 4, 5]                 # deficit patients 0-3, normal 4-6
+    assert DecisionStudySettings(cohort=st.cohort, patients_per_kind=(("forces+postures", 9),)).participants(
+        "forces+postures") == list(range(7))                       # k above the cohort: all
+    with pytest.raises(ValueError, match="patients_per_kind"):
+        DecisionStudySettings(patients_per_kind=(("alg5", 2),))
+    with pytest.raises(ValueError, match="patients_per_kind"):
+        DecisionStudySettings(patients_per_kind=(("alg4", 0),))
+    cfg = load_config(str(ROOT / "config" / "config.yaml"))
+    study, _ = decision_study_settings(cfg, "s3m24")
+    assert dict(study.patients_per_kind)["alg4"] >= 1
+    assert len(study.participants("forces")) == study.cohort.n_deficit + study.cohort.n_normal
 
 
 def test_a_protocols_cache_keeps_its_columns_and_drops_a_file_of_other_settings(tmp_path):

@@ -195,7 +195,8 @@ def _protocol_signature(decision, study, joint, seed: int, model_name: str, prot
            "forces+postures": ("postures",), "alg4": ("alg4_tests", "bootstrap_direction")}.get(protocol, ())
     keep = {k: getattr(study, k) for k in own}
     core = replace(study, protocols=(), checkpoints=(), false_alarm=0.05, misfit_level=0.05,
-                   emg_groups=(), emg_band=0.05, postures=("neutral",), alg4_tests=(25,), bootstrap_direction="")
+                   emg_groups=(), emg_band=0.05, postures=("neutral",), alg4_tests=(25,), bootstrap_direction="",
+                   patients_per_kind=())
     return _signature(decision, core, joint, {"protocol": protocol, **{k: repr(v) for k, v in keep.items()},
                                               "extra": repr(extra)}, seed, model_name)
 
@@ -267,10 +268,11 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
     finished = {p: set() if df.empty else set(df["participant"]) for p, df in done.items()}
     # alg4 after fewer tests than directions reads the forces protocol's order: forces first
     order = sorted(study.protocols, key=lambda p: (p != "forces", p == "alg4"))
-    todo = [(p, i) for p in order for i in range(n) if i not in finished[p]]
+    todo = [(p, i) for p in order for i in study.participants(p) if i not in finished[p]]
     print(f"decision study of {model_name}: {decision.label()}\n{decision}\n{study}\nseed {seed}; streams "
           f"'decision/{model_name}/<truth|candidates>' + participant index; done before: "
-          + ", ".join(f"{p} {len(finished[p])} of {n}" for p in order), flush=True)
+          + ", ".join(f"{p} {len(finished[p] & set(study.participants(p)))} of {len(study.participants(p))}"
+                      for p in order), flush=True)
 
     def rng_for(what, i):
         return derive_rng(seed, f"decision/{model_name}/{what}", i)
@@ -308,7 +310,8 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
             _append_cache(caches[batch[k][0]], sigs[batch[k][0]], rows)
     runs = pd.concat([_read_cache(caches[p], sigs[p]) for p in study.protocols], ignore_index=True)
     runs = runs.drop_duplicates(["participant", "protocol", "t"])
-    runs = runs[runs["participant"] < n]
+    keep = {p: set(study.participants(p)) for p in study.protocols}      # a cache may hold more (an earlier k)
+    runs = runs[[i in keep[p] for p, i in zip(runs["protocol"], runs["participant"])]]
     runs = runs.sort_values(["participant", "protocol", "t"], kind="stable").reset_index(drop=True)
     cps = tuple(t for t in study.checkpoints if t <= study.n_max)
     roc = roc_table(runs, cps, study.false_alarm, decision.p_decide)

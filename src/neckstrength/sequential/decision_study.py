@@ -59,6 +59,9 @@ class DecisionStudySettings:
     alg4_tests: tuple[int, ...] = (25,)          # the alg4 protocol: Algorithm 4 after these many tests
     bootstrap_direction: str = "back"            # Algorithm 4's Eq. 5.3 scaling direction (chapter5)
     misfit_level: float = 0.05                   # the calibrated misfit guard flags this share of the model's patients
+    # (protocol, k): that protocol measures only the first k deficit and the first k normal patients (its cost);
+    # a protocol not named measures every patient
+    patients_per_kind: tuple[tuple[str, int], ...] = ()
 
     def __post_init__(self):
         if not 0 < self.misfit_level < 0.5:
@@ -66,6 +69,19 @@ class DecisionStudySettings:
         bad = [p for p in self.protocols if p not in PROTOCOLS]
         if bad:
             raise ValueError(f"unknown protocols {bad}; known: {PROTOCOLS}")
+        bad = [p for p, k in self.patients_per_kind if p not in PROTOCOLS or int(k) < 1]
+        if bad:
+            raise ValueError(f"clinician.decision_study.patients_per_kind: {bad} must be protocols ({PROTOCOLS}) "
+                             "with at least 1 patient")
+
+    def participants(self, protocol: str) -> list[int]:
+        """The cohort indices measured under ``protocol``: every patient, or the first ``k`` of each kind
+        (deficit patients come first in the cohort, ``0 .. n_deficit - 1``)."""
+        n_d, n_n = self.cohort.n_deficit, self.cohort.n_normal
+        k = dict(self.patients_per_kind).get(protocol)
+        if k is None:
+            return list(range(n_d + n_n))
+        return list(range(min(k, n_d))) + list(range(n_d, n_d + min(k, n_n)))
         if any("emg" in p for p in self.protocols) and not self.emg_groups:
             raise ValueError("protocols with EMG need emg_groups (the recorded muscle groups)")
 
