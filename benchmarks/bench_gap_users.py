@@ -43,8 +43,9 @@ import numpy as np
 NEW_EFFECTS = ("submaximal_effort", "posture_drift", "anthropometric_scaling")
 
 
-def settings_for(cfg, model, n_null: int, repeats):
-    """Context, diagnosis settings and candidate list of the benchmark (see the module docstring)."""
+def settings_for(cfg, model, n_null: int, repeats, null_truth: str | None = None):
+    """Context, diagnosis settings and candidate list of the benchmark (see the module docstring); ``null_truth``:
+    the noise-only replicates' truths (None: the config's ``gap.calibration.null_truth``)."""
     from neckstrength.config import build_directions, calibration_settings, diagnosis_settings, gap_context
     from neckstrength.gap.effects import EFFECTS
 
@@ -54,7 +55,7 @@ def settings_for(cfg, model, n_null: int, repeats):
     b = cfg["gap"]["benchmark"]
     cal = calibration_settings(cfg)
     cal = replace(cal, replicates=int(n_null), noise="auto", repeats=tuple(repeats), sensitivity=False,
-                  power_replicates=0)
+                  power_replicates=0, null_truth=null_truth or cal.null_truth)
     ds = replace(ds, folds=b.get("folds", ds.folds), bootstrap=b.get("bootstrap", ds.bootstrap),
                  starts=b.get("starts", ds.starts), pairs_top=0, refine_iter=0, reach_samples=0, reach_iter=0,
                  calibration=cal)
@@ -96,6 +97,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--only", default=None, help="comma-separated case names (u001, ...): diagnose only these "
                     "cases of the design (its draws unchanged), e.g. to look at single cases again")
     ap.add_argument("--null-replicates", type=int, default=19, help="noise-only replicates of the decision")
+    ap.add_argument("--null-truth", choices=("base", "elements"), default=None,
+                    help="truths of the noise-only replicates (default: the config's gap.calibration.null_truth)")
     ap.add_argument("--chunk", type=int, default=8, help="cases per batch (results do not depend on it)")
     ap.add_argument("--jobs", type=int, default=1, help="processes sharing out a batch's effects")
     ap.add_argument("--max-seconds", type=float, default=None, help="start no new batch after this long")
@@ -128,10 +131,12 @@ def main(argv=None) -> dict:
                        load_posture_tables(cfg["data"]["model_dir"]))
     stream = f"gap-users/{model}"
     cases = generate_truth_cases(setup, cs, derive_rng(cfg["seed"], stream), limit=a.limit)
-    ctx, ds, effects = settings_for(cfg, model, a.null_replicates, [c.repeats_row() for c in cases])
+    ctx, ds, effects = settings_for(cfg, model, a.null_replicates, [c.repeats_row() for c in cases], a.null_truth)
     design = {"model": model, "seed": cfg["seed"], "stream": stream, "cases": asdict(cs), "limit": a.limit,
               "null_replicates": a.null_replicates, "effects": effects,
               "decision": "aim scatter (gap.scatter) after the calibrated choice, 2026-11-28"}
+    if ds.calibration.null_truth != "base":      # (a base null keeps the designs of the runs before the option)
+        design.update(null_truth=ds.calibration.null_truth, element_spread=ds.calibration.element_spread)
     dhash = hashlib.sha256(json.dumps(design, sort_keys=True).encode()).hexdigest()[:16]
     out.mkdir(parents=True, exist_ok=True)
     rows_path = out / "rows.jsonl"
@@ -152,7 +157,8 @@ def main(argv=None) -> dict:
     except OSError:
         commit = "unknown"
     say(f"{model}: {len(cases)} cases ({len(done)} done before), design {dhash}, seed {cfg['seed']} stream {stream}; "
-        f"candidates {', '.join(effects)}; {a.null_replicates} noise-only replicates")
+        f"candidates {', '.join(effects)}; {a.null_replicates} noise-only replicates, null truths "
+        f"{ds.calibration.null_truth}")
     atomic_write_text(json.dumps(design, indent=2), out / "design.json")
 
     def rescore() -> dict:
@@ -194,6 +200,7 @@ def main(argv=None) -> dict:
                 r = case_row(c.name, c.truth, c.target, effects + [AIM_SCATTER], d.summary, d.effects)
                 r.update({"design": dhash, "commit": commit, "noise_true": c.noise, "noise_measured": c.noise_sd,
                           "truth_params": describe(c.truth, c.params), "batch_wall_s": wall,
+                          "null_truth": d.summary.get("null_truth", ""),
                           "batch_cases": len(part)})
                 if c.name in pw:
                     r["power_detectable"] = pw[c.name]

@@ -101,6 +101,8 @@ STREAMS: tuple[Stream, ...] = (
     Stream(("gap/truth/{dataset}", "gap/truth/{dataset}/{tag}"), "gap.calibrate", "the calibration's truths"),
     Stream(("gap/power/{dataset}/{effect}/{size}",), "gap.calibrate", "the power simulation's noise"),
     Stream(("gap/null/{dataset}",), "gap.calibrate", "the null simulation's noise (key + '/{tag}' for a tagged null)"),
+    Stream(("gap/elements/{dataset}",), "gap.calibrate (null_truth: elements)",
+           "the element null's strength factors per element and replicate (key + '/{tag}' for a tagged null)"),
     Stream(("gap/starts/{key}/{dataset}",), "gap.engine", "a refit's random starts", extra="fold + 1"),
     Stream(("gap/scatter/{dataset}",), "gap.diagnose (aiming scatter)", "the aiming-scatter test's simulation"),
     # clinician session (neckstrength session, the app)

@@ -177,6 +177,8 @@ class Calibration:
     rms_null: np.ndarray | None = None  # (R x (1 + E)) RMS log held-out residual of the null replicates
     rms_obs: np.ndarray | None = None   # (1 + E) and of the measured data set
     sensitivity: list = None            # [(label, Calibration at the range's end)], without power
+    null: str = "base"                  # where the null's truths come from (NULL_TRUTHS)
+    null_note: str = ""                 # the report's sentence about it (NULL_NOTES)
 
     def decide(self, gap: np.ndarray) -> dict:
         """``gap``: held-out gaps ('none' first, then the effects in ``effects`` order) of one data set."""
@@ -194,6 +196,86 @@ class Calibration:
         p_g = ((1 + (self.gap_null[:, j] >= gap - 1e-12).sum()) / (R + 1)) if self.noise_source != "heldout" \
             else np.nan
         return {"p_structure": float(p_s), "p_gap": float(p_g)}
+
+
+#: where the noise-only replicates' truths come from (``gap.calibration.null_truth``): 'base' = the fitted model's own
+#: structure (its groups, tied sides), 'elements' = a finer one (every full-model element its own strength, drawn
+#: per replicate: :class:`ElementNull`)
+NULL_TRUTHS = ("base", "elements")
+
+#: the report's sentence per null source (docs/gap_diagnosis.md, "Calibration")
+NULL_NOTES = {
+    "base": "the fitted model's own structure (its muscle groups, sides tied as in the fit) plus noise; a finer "
+            "muscle structure (e.g. each of the 96 elements its own strength) can be named as an effect",
+    "elements": "a finer structure than the model's (each full-model element its own strength: the fitted group "
+                "strength x exp(N(0, {spread:g})) per element, left and right apart) plus noise; such element-level "
+                "variation is not named as an effect",
+}
+
+
+class ElementNull:
+    """Forces of the element null's truths (``gap.calibration.null_truth: elements``).
+
+    Every element of the full model that belongs to a fitted group is its own LP column (moment arms of the full
+    model at the model's joints; the rows, test directions and force scales of the fitted model's instance), with
+    strength ``f_el = full strength x f_g / model strength_g x c_el``: the group strength ``f_g`` of the
+    replicate's truth (:func:`truth_strengths`) and a factor ``c_el = exp(N(0, spread))`` drawn per element and
+    replicate, normalised so that the strength-weighted mean factor of each free parameter's elements (a group,
+    both sides where the fit ties them) is 1: the fitted group totals keep their meaning, while elements within a
+    group and the two sides of a tied group vary apart (as individuals' muscles do: the finer structure, not an
+    effect). Made here from :func:`neckstrength.gap.effects.base_instance` and the solver, apart from the user
+    benchmark's 96-element truth (:mod:`neckstrength.gap.truths`)."""
+
+    def __init__(self, ctx: GapContext, spread: float):
+        from dataclasses import replace
+
+        from neckstrength.estimation.parameters import free_parameters
+        from neckstrength.model.full import COORDINATES
+
+        if not spread >= 0:
+            raise ValueError(f"gap.calibration.element_spread: a log SD >= 0, not {spread!r}")
+        full, model = ctx.full, ctx.model
+        inst = base_instance(ctx)
+        S = np.asarray(model.S, float)
+        el = np.array([i for i in range(full.m) if full.strengths[i] > 0 and S[i].max() > 0], int)
+        grp = S[el].argmax(axis=1)
+        ok = model.strengths[grp] > 0
+        el, grp = el[ok], grp[ok]
+        rows = [COORDINATES.index(c) for c in model.coordinates]
+        A = np.zeros((len(el), model.m))
+        A[np.arange(len(el)), grp] = full.strengths[el] / model.strengths[grp]
+        elem = np.zeros((full.m, len(el)))
+        elem[el, np.arange(len(el))] = 1.0
+        K = inst.lb.shape[0]
+        R = full.moment_arms[rows][:, el]
+        R = np.vstack([R, np.zeros((inst.R.shape[0] - R.shape[0], R.shape[1]))])
+        self.inst = replace(inst, R=R, A=A, a0=np.zeros(len(el)), cols=tuple(full.names[i] for i in el),
+                            col_group=grp, elem=elem, lb=np.zeros((K, len(el))), ub=np.ones((K, len(el))))
+        self.sim = Simulator(ctx, self.inst)
+        pidx, _ = free_parameters(model, ctx.tie_sides)
+        self.owner = np.asarray(pidx)[grp]                 # free parameter of each element column
+        self.weight = full.strengths[el]
+        self.spread = float(spread)
+
+    def factors(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """(n x elements) strength factors, normalised per free parameter (strength-weighted mean 1)."""
+        c = np.exp(rng.normal(0.0, self.spread, (n, len(self.weight))))
+        for q in np.unique(self.owner):
+            s = self.owner == q
+            c[:, s] /= (c[:, s] @ self.weight[s] / self.weight[s].sum())[:, None]
+        return c
+
+    def forces(self, F: np.ndarray, factors: np.ndarray) -> np.ndarray:
+        """Max force (N, n x K) of group strengths ``F`` (n x m) with element factors (n x elements)."""
+        from neckstrength.wrench import solve
+
+        F = np.atleast_2d(F)
+        if len(F) == 0:
+            return np.zeros((0, self.sim.K))
+        Fa = self.inst.strengths(F) * factors
+        w, _, _ = solve(self.sim.model, Fa, self.sim.U, self.sim.lb, self.sim.ub, return_alpha=False,
+                        cache=self.sim.cache)
+        return np.nan_to_num(np.asarray(w, float), nan=0.0) * self.sim.fmul[None, :, 0]
 
 
 def truth_strengths(sim: Simulator, phi_fit: np.ndarray, T: np.ndarray, sigma: float, spread: float, n: int,
@@ -364,12 +446,19 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
     sig = [estimate_noise(rms_obs[i], cs.noise, n, cs.repeats, cs.noise_prior) for i, n in enumerate(names)]
     sims, meta = [], []                                    # simulated data sets and (data set, kind, effect, size)
     sim_base = Simulator(ctx, base_instance(ctx))
+    if cs.null_truth not in NULL_TRUTHS:
+        raise ValueError(f"gap.calibration.null_truth: one of {', '.join(NULL_TRUTHS)}, not {cs.null_truth!r}")
+    el_null = ElementNull(ctx, cs.element_spread) if cs.null_truth == "elements" and R else None
     phis = {}                                              # truth log strengths per data set: (R + power reps) x p
     sens = {i: ([("low", sig[i].low), ("high", sig[i].high)] if cs.sensitivity and np.isfinite(sig[i].low)
                 else []) for i in range(nd)}
 
     def add_null(i, n, sigma, ph, kind, tag):
-        f_null = sim_base.forces(sim_base.muscles(ph[:R])) if R else np.zeros((0, K))
+        if el_null is not None:                            # the finer structure: element factors per replicate
+            fac = el_null.factors(R, derive_rng(s.seed, f"gap/elements/{n}" + (f"/{tag}" if tag else "")))
+            f_null = el_null.forces(sim_base.muscles(ph[:R]), fac)
+        else:
+            f_null = sim_base.forces(sim_base.muscles(ph[:R])) if R else np.zeros((0, K))
         f_null = np.maximum(f_null, 1e-3 * np.median(f_fit[i]))       # a direction the draw cannot produce
         z = derive_rng(s.seed, f"gap/null/{n}" + (f"/{tag}" if tag else "")).normal(0.0, 1.0, (R, K))
         for r in range(R):
@@ -391,7 +480,9 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
         meta.append((i, "observed", "", 0.0))
     meta_ok = [m for m in meta if m[1] != "skip"]
     say(f"calibration: {len(sims) - nd} simulated data sets ({R} noise-only per data set, "
-        f"{len(effects)} effects x {len(cs.power_sizes)} sizes x {cs.power_replicates} with an effect); noise "
+        f"{len(effects)} effects x {len(cs.power_sizes)} sizes x {cs.power_replicates} with an effect); null "
+        f"truths: {cs.null_truth}"
+        + (f" (element spread {cs.element_spread:g})" if cs.null_truth == "elements" else "") + "; noise "
         + ", ".join(f"{n} {sg.sigma:.3f} ({sg.source})" for n, sg in zip(names, sig))
         + (f"; sensitivity: {R} more at each end of the noise's range" if any(sens.values()) else ""))
     if sims:
@@ -408,7 +499,9 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
         _, _, t_null, _ = maxt(delta_null, mu, sd, np.zeros(0))
         return Calibration(sigma, source, E, delta_null, mu, sd, t_null, gap_null, sc.structure[rows],
                            pd.DataFrame(), sc.gap[jo], sc.structure[jo], np.asarray(phi_fit[i], float).copy(),
-                           np.asarray(f_fit[i], float).copy(), rms_null=sc.rms[rows], rms_obs=sc.rms[jo])
+                           np.asarray(f_fit[i], float).copy(), rms_null=sc.rms[rows], rms_obs=sc.rms[jo],
+                           null=cs.null_truth,
+                           null_note=NULL_NOTES[cs.null_truth].format(spread=cs.element_spread))
 
     for i, n in enumerate(names):
         jo = next(j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "observed")

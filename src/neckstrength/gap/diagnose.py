@@ -617,6 +617,7 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
         cal_summary.update({
             "named": chosen, "p_value": dec["p_adjusted"], "best_effect_calibrated": dec["best"],
             "p_raw_best": float(dec["p_raw"][cal.effects.index(dec["best"])]), "T": dec["T"],
+            "null_truth": cal.null, "null_note": cal.null_note,
             "noise_sigma": cal.sigma, "noise_source": cal.noise_source, "noise_note": nz.note,
             "noise_low": nz.low, "noise_high": nz.high, "rms_heldout_log_chosen": rms_obs,
             "gap_over_noise": rms_obs / cal.sigma, "gap_over_noise_null_median": rms_null_med / cal.sigma,

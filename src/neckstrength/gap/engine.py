@@ -49,6 +49,9 @@ class CalibrationSettings:
     the way from neutral to the far bound) at which the power is simulated, ``power_replicates`` data sets per
     effect and size, ``power_target`` the share identified that counts as detectable. ``strength_spread``: SD of
     individual log strengths, for the strengths the directions leave undetermined in the simulated truths.
+    ``null_truth``: the structure of the noise-only replicates' truths, 'base' (the fitted model's own) or 'elements'
+    (each full-model element its own strength, factor ``exp(N(0, element_spread))`` per element and replicate:
+    :class:`neckstrength.gap.calibrate.ElementNull`).
     ``starts`` / ``max_iter``: fits of the screen (the measured data set and its simulated ones alike)."""
 
     replicates: int = 39
@@ -66,6 +69,8 @@ class CalibrationSettings:
     sd_floor: float = 1e-3
     cv: str = "refit"
     cv_steps: int = 1
+    null_truth: str = "base"
+    element_spread: float = 0.3
 
 
 @dataclass(frozen=True)

@@ -158,10 +158,9 @@ def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
              f"{len(diag.power_summary)} effects; {s['replicates']} noise-only replicates simulated from this data "
              f"set's fitted base model, so p-values have resolution {s['p_resolution']:.3g}); the raw p-value of "
              f"the best effect `{s['best_effect_calibrated']}` alone is {s['p_raw_best']:.3g}.",
-             "- **Scope of the p-value**: the replicates are the fitted model plus noise, so its false-alarm rate "
-             f"{s['alpha']:g} holds for data the model's structure could have made; a finer muscle structure than the "
-             "model's (e.g. each of the 96 elements its own strength) can be named as an effect "
-             "(docs/gap_diagnosis.md, The three largest failures).",
+             f"- **Scope of the p-value** (null truths `{s.get('null_truth', 'base')}`, `gap.calibration.null_truth`):"
+             f" the replicates are {s.get('null_note') or 'the fitted model plus noise'}; its false-alarm rate "
+             f"{s['alpha']:g} holds for data of that structure (docs/gap_diagnosis.md, Calibration).",
              f"- **Noise level** of the replicates: log-normal SD {s['noise_sigma']:.3f}, source "
              f"`{s['noise_source']}`" + (f": {s['noise_note']}" if s.get("noise_note") else "") + ".",
              f"- **Remainder**: {s['remainder']} (plane structure of the held-out residuals "
