@@ -452,6 +452,13 @@ def calibration_settings(config: Mapping) -> CalibrationSettings:
     if isinstance(noise, bool) or not (isinstance(noise, (int, float)) and noise > 0
                                        or noise in ("auto", "repeats", "prior", "heldout")):
         raise ValueError(f"gap.calibration.noise: auto, repeats, prior, heldout or a positive log SD, not {noise!r}")
+    null = str(c.get("null_truth", "base"))
+    if null not in ("base", "elements"):
+        raise ValueError(f"gap.calibration.null_truth: base or elements, not {null!r}")
+    spread = c.get("element_spread", 0.3)
+    if isinstance(spread, bool) or not isinstance(spread, (int, float)) or not spread >= 0:
+        raise ValueError(f"gap.calibration.element_spread: a log SD >= 0, not {spread!r}")
+    spread = float(spread)
     prior = c.get("noise_prior") or {}
     prior = tuple(float(prior.get(k, d)) for k, d in (("low", 0.05), ("central", 0.08), ("high", 0.15)))
     if not 0 < prior[0] <= prior[1] <= prior[2]:
@@ -470,7 +477,8 @@ def calibration_settings(config: Mapping) -> CalibrationSettings:
                                power_target=float(c.get("power_target", 0.8)),
                                strength_spread=float(c.get("strength_spread", 0.3)),
                                starts=int(c.get("starts", 1)), max_iter=int(c.get("max_iter", 15)),
-                               cv=str(c.get("cv", "refit")), cv_steps=int(c.get("cv_steps", 1)))
+                               cv=str(c.get("cv", "refit")), cv_steps=int(c.get("cv_steps", 1)),
+                               null_truth=null, element_spread=spread)
 
 
 def benchmark_settings(config: Mapping) -> BenchmarkSettings:
