@@ -24,21 +24,15 @@ from neckstrength.wrench.problem import STATUS_CODES
 _OPT = {v: k for k, v in STATUS_CODES.items()}["optimal"]
 
 
-class PostureJointPosterior(JointPosterior):
-    """Joint posterior over neutral group strengths, tests in several postures (``postures[k]`` of test k)."""
+class PostureWrenches:
+    """The candidate wrenches of a :class:`~neckstrength.sequential.joint.JointPosterior` whose tests are in several
+    postures: test ``k`` in posture ``test_postures[k]`` of the :class:`PostureSet` ``pset`` (neutral group
+    strengths mapped to each posture's model). Mixed in before the posterior class, which sets ``pset`` and
+    ``test_postures``: :class:`PostureJointPosterior` and the deficit decision's
+    :class:`~neckstrength.sequential.decision.PostureHypothesisPosterior`."""
 
-    def __init__(self, pset: PostureSet, labels: Sequence[str], U: np.ndarray, force_scale: np.ndarray,
-                 postures: Sequence[str], f0: np.ndarray, settings: JointSettings, rng: np.random.Generator,
-                 change_cost: float = 0.0, start_posture: str = "neutral", **kw):
-        if len(postures) != len(labels):
-            raise ValueError("one posture per test label")
-        if change_cost < 0:
-            raise ValueError("change_cost must be >= 0")
-        self.pset = pset
-        self.test_postures = list(postures)
-        self.change_cost = float(change_cost)
-        self.start_posture = start_posture
-        super().__init__(pset.neutral, labels, U, force_scale, f0, settings, rng, **kw)
+    pset: PostureSet
+    test_postures: list[str]
 
     def _solve_all(self, F: np.ndarray, cols: np.ndarray | None = None):
         cols = np.arange(len(self.U)) if cols is None else np.asarray(cols, int)
@@ -54,6 +48,23 @@ class PostureJointPosterior(JointPosterior):
                          n_threads=self.n_threads)
         self.n_lps += w.size
         return np.where(st[:, 0] == _OPT, w[:, 0], 0.0)
+
+
+class PostureJointPosterior(PostureWrenches, JointPosterior):
+    """Joint posterior over neutral group strengths, tests in several postures (``postures[k]`` of test k)."""
+
+    def __init__(self, pset: PostureSet, labels: Sequence[str], U: np.ndarray, force_scale: np.ndarray,
+                 postures: Sequence[str], f0: np.ndarray, settings: JointSettings, rng: np.random.Generator,
+                 change_cost: float = 0.0, start_posture: str = "neutral", **kw):
+        if len(postures) != len(labels):
+            raise ValueError("one posture per test label")
+        if change_cost < 0:
+            raise ValueError("change_cost must be >= 0")
+        self.pset = pset
+        self.test_postures = list(postures)
+        self.change_cost = float(change_cost)
+        self.start_posture = start_posture
+        super().__init__(pset.neutral, labels, U, force_scale, f0, settings, rng, **kw)
 
     @property
     def current_posture(self) -> str:

@@ -42,8 +42,9 @@ import pandas as pd
 from scipy.special import log_ndtr, ndtr, ndtri
 
 from neckstrength.model.reduction import ReducedModel
-from neckstrength.sequential.joint import JointPosterior, JointSettings
+from neckstrength.postures.sequential import PostureWrenches
 from neckstrength.seeds import child_generators
+from neckstrength.sequential.joint import JointPosterior, JointSettings
 
 DECISIONS = ("deficit", "no deficit", "undecided", "model misfit")
 
@@ -385,7 +386,7 @@ class HypothesisPosterior(JointPosterior):
 
 
 
-class PostureHypothesisPosterior(HypothesisPosterior):
+class PostureHypothesisPosterior(PostureWrenches, HypothesisPosterior):
     """:class:`HypothesisPosterior` with tests in several postures (``test_postures[k]`` of test k): the wrenches of
     :class:`~neckstrength.postures.sequential.PostureJointPosterior` (the neutral group strengths mapped to each
     posture's model), the priors and sampler of the hypothesis."""
@@ -398,16 +399,6 @@ class PostureHypothesisPosterior(HypothesisPosterior):
         self.pset = pset
         self.test_postures = list(test_postures)
         super().__init__(pset.neutral, directions, U, force_scale, f0, settings, prior, rng, **kw)
-
-    def _solve_all(self, F: np.ndarray, cols: np.ndarray | None = None):
-        from neckstrength.postures.sequential import PostureJointPosterior
-
-        return PostureJointPosterior._solve_all(self, F, cols)
-
-    def _bounded(self, F: np.ndarray, i: int, bounds) -> np.ndarray:
-        from neckstrength.postures.sequential import PostureJointPosterior
-
-        return PostureJointPosterior._bounded(self, F, i, bounds)
 
 
 class DeficitDecision:
