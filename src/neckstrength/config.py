@@ -656,12 +656,13 @@ def gap_context(config: Mapping, model_name: str, directions: pd.DataFrame) -> G
 
 
 def _gap_posture_tables(config: Mapping) -> dict | None:
-    """The sagittal posture tables (neutral, flex20, ext20) for the gap diagnosis's ``posture_drift`` and the
-    posture protocol; None when the model folder has none (the effect then does not apply)."""
-    from neckstrength.postures.tables import SAGITTAL_POSTURES, load_posture_tables
+    """The shipped posture tables (all seven: ``posture_drift`` drifts about every axis) for the gap diagnosis's
+    ``posture_drift`` and the posture protocol; None when the model folder has none (the effect then does not
+    apply)."""
+    from neckstrength.postures.tables import load_posture_tables
 
     try:
-        return load_posture_tables(config["data"]["model_dir"], SAGITTAL_POSTURES)
+        return load_posture_tables(config["data"]["model_dir"])
     except FileNotFoundError:
         return None
 

@@ -110,6 +110,10 @@ class Instance:
     predicted force of test k is ``max_j w*(U6[k, j]) * fmul[k, j]``, or, with ``window`` (a
     :class:`neckstrength.gap.window.WindowSet`), the maximum over each test's whole matching window (the
     candidates are then where :class:`neckstrength.gap.fit.Simulator` starts its active sets).
+    ``dR`` (K x n0 x m0) and ``dJT`` (K x n0 x d), or None: a change of the first n0 rows and m0 columns of ``R``
+    and of the first n0 rows of ``JT`` that differs by test (``posture_drift``: each test in its own posture), so
+    that test k's LP has ``R + dR[k]`` and ``JT + dJT[k]`` (:meth:`test_matrices`); rows and columns added after it
+    keep the shared values.
     """
 
     R: np.ndarray
@@ -131,6 +135,8 @@ class Instance:
     planar: bool
     labels: tuple[str, ...] = ()
     window: object | None = None
+    dR: np.ndarray | None = None
+    dJT: np.ndarray | None = None
 
     @property
     def muscle_cols(self) -> np.ndarray:
@@ -139,6 +145,17 @@ class Instance:
     @property
     def J(self) -> int:
         return self.U6.shape[1]
+
+    def test_matrices(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Per test (K x n x m') moment arms and (K x n x d) ``J^T`` where they differ by test (``dR``), else None."""
+        if self.dR is None:
+            return None
+        K, n0, m0 = self.dR.shape
+        R = np.repeat(self.R[None], K, axis=0)
+        R[:, :n0, :m0] += self.dR
+        JT = np.repeat(self.JT[None], K, axis=0)
+        JT[:, :n0] += self.dJT
+        return R, JT
 
     def strengths(self, F: np.ndarray) -> np.ndarray:
         """Column strengths for base-model strength vectors ``F`` (N x m)."""
@@ -793,84 +810,136 @@ class SubmaximalEffort(Effect):
         return replace(inst, ub=np.maximum(ub, inst.lb))
 
 
-class PostureDrift(Effect):
-    """The head-neck posture drifts from the set posture during the push (the head is strapped to the pads, the
-    torso to the chair, but the neck between them is free; Appendix A): every test is made ``drift`` degrees
-    flexed (+) or extended (-) from the context's posture (neutral unless ``ctx.posture_angle``). The model in
-    the drifted posture comes from the shipped posture tables (``data/model/postures``: neutral, flex20, ext20;
-    docs/postures.md): the element moment arms, joint centres and axes and active force-length factors are
-    interpolated linearly in the flexion angle between the two nearest tables (beyond +-20 deg: extrapolated
-    along the last segment), joint axes renormalised, ``J^T`` rebuilt from them, then reduced with the fitted
-    model's grouping (Sec. 4.2.1.3) exactly as :func:`neckstrength.postures.model.reduce_in_posture` does; the
-    group strengths follow the force-length factors (``ctx.force_length``). The test points and push directions
-    stay fixed to the skull (the pads move with the head). Combined with ``kinematic`` or ``finer_groups``, their
-    added rows and columns keep the neutral moment arms.
+#: The axis each shipped non-neutral posture table turns about, and its joint-angle sign and size (deg, head on
+#: thorax), as data/model/postures/postures.csv's ``axis`` and ``theta_deg`` (a test checks): positive pitch is
+#: extension, positive roll bends to the right, positive yaw turns to the left.
+POSTURE_AXES = {"flex20": ("pitch", -20.0), "ext20": ("pitch", 20.0), "bendL15": ("roll", -15.0),
+                "bendR15": ("roll", 15.0), "rotL30": ("yaw", 30.0), "rotR30": ("yaw", -30.0)}
 
-    Bound: +-12 deg (``max_drift_deg``), a modelling choice: the drift is limited by the compliance of the head
-    pads and torso straps, which the thesis does not measure; 12 deg keeps the drifted posture well inside the
-    tables' +-20 deg, where the interpolation is between computed postures."""
+
+class PostureDrift(Effect):
+    """The head-neck posture drifts during the push (the head is strapped to the pads, the torso to the chair, the
+    neck between them is free, and pads and straps give; Appendix A): in every test the head moves ``drift``
+    degrees away from the set posture in the direction of the torque the test demands of the neck (the head gives
+    way in the direction it pushes). The direction per test: the demanded joint torque ``J^T u`` of the test's
+    target wrench, summed over the model's joints per axis (pitch, roll, yaw) and normalised; each axis turns by
+    ``drift`` times its share. The model in the drifted posture comes from the shipped posture tables
+    (``data/model/postures``, docs/postures.md): element moment arms, joint centres and axes and active
+    force-length factors, along pitch interpolated linearly between the two nearest of ext20, neutral and flex20
+    (from the set posture, ``ctx.posture_angle``), along roll and yaw the change from neutral to bendL15 / bendR15
+    and rotL30 / rotR30 scaled by the angle's share of the table's (summed over the axes: first order in the
+    angles); joint axes renormalised, ``J^T`` rebuilt, then reduced with the fitted model's grouping (Sec. 4.2.1.3)
+    as :func:`neckstrength.postures.model.reduce_in_posture` does; group strengths follow the force-length factors
+    (``ctx.force_length``). Test points and push directions stay fixed to the skull (the pads move with the head).
+    So every test has its own moment arms and ``J^T`` (``Instance.dR`` / ``dJT``); the joint centres reported
+    (``row_centre``) and the element shares (``elem``: EMG, added rows) stay those of the set posture, and rows and
+    columns that ``kinematic``, ``finer_groups`` or ``shoulder_girdle`` add keep the set posture's moment arms.
+
+    Bound: 0 to 15 deg (``max_drift_deg``). The thesis does not measure how far the head moves during a test
+    (Appendix A: no motion capture in the strength tests); 15 deg is the smallest range of the shipped tables
+    (lateral bend), so every drifted posture lies between computed postures. Drift against the push (negative) is
+    not a candidate: compliance yields in the direction of the load."""
 
     name = "posture_drift"
     family = "posture"
     order = 5
-    description = "head-neck flexion (+) / extension (-) drift during the push (shipped posture tables)"
-    source = ("Appendix A (head strapped to the pads, neck free); data/model/postures (docs/postures.md; "
-              "Sec. 6.6.2 / 7.1.2.2)")
-    defaults = {"max_drift_deg": 12.0}
+    description = "head-neck posture drifts in each test along the demanded torque (shipped posture tables)"
+    source = ("Appendix A (head strapped to the pads, neck free; no measurement of head motion); data/model/postures "
+              "(docs/postures.md; range of the tables: flexion/extension 20 deg, lateral bend 15, axial rotation 30)")
+    defaults = {"max_drift_deg": 15.0}
 
     def params(self):
         m = float(self.s["max_drift_deg"])
-        return (Param("drift_deg", -m, m, 0.0, "deg", "flexion (+) / extension (-) of the head-neck posture"),)
+        if not 0.0 < m <= 15.0:
+            raise ValueError(f"gap.effect_settings.posture_drift.max_drift_deg: in (0, 15] (the tables' smallest "
+                             f"range, lateral bend), not {m}")
+        return (Param("drift_deg", 0.0, m, 0.0, "deg", "posture drift per test along the torque it demands"),)
 
-    def _tables(self) -> list[tuple[float, object]]:
-        tab = dict(self.ctx.postures or {})
-        return sorted((POSTURE_ANGLES[n], t) for n, t in tab.items() if n in POSTURE_ANGLES)
+    def _axes(self) -> tuple[str, ...]:
+        """The rotation axes of the model's coordinates (pitch; pitch, roll, yaw)."""
+        return tuple(dict.fromkeys(c.rsplit("_", 1)[1] for c in self.ctx.model.coordinates))
 
     def applies(self):
-        tabs = self._tables()
-        return len(tabs) >= 2 and any(a == 0.0 for a, _ in tabs)
+        tabs = dict(self.ctx.postures or {})
+        need = ["neutral"] + [p for p, (ax, _) in POSTURE_AXES.items() if ax in self._axes()]
+        return all(p in tabs for p in need)
 
-    def state(self, angle: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Element moment arms (21 x 96), strength factors (96), joint centres and unit axes (21 x 3) at flexion
-        ``angle`` (deg): linear in the angle between the nearest two tables."""
-        from neckstrength.postures.tables import PostureTable  # noqa: F401  (the tables' type)
+    def _pitch_tables(self) -> list[tuple[float, object]]:
+        """(pitch angle, table) along pitch, ascending (ext20 is +20)."""
+        tabs = dict(self.ctx.postures)
+        pts = [(0.0, tabs["neutral"])] + [(ang, tabs[p]) for p, (ax, ang) in POSTURE_AXES.items() if ax == "pitch"]
+        return sorted(pts, key=lambda t: t[0])
 
-        tabs = self._tables()
-        angles = np.array([a for a, _ in tabs])
-        i = int(np.clip(np.searchsorted(angles, angle) - 1, 0, len(angles) - 2))
-        (a0, t0), (a1, t1) = tabs[i], tabs[i + 1]
-        w = (angle - a0) / (a1 - a0)
+    def state(self, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Element moment arms (21 x 96), strength factors (96), joint centres and unit axes (21 x 3) at joint
+        angles ``angles`` = (pitch, roll, yaw) in deg of the head on the thorax (pitch from neutral)."""
+        tabs = dict(self.ctx.postures)
         fl = str(self.ctx.force_length)
+        pts = self._pitch_tables()
+        ang = np.array([a for a, _ in pts])
+        i = int(np.clip(np.searchsorted(ang, angles[0]) - 1, 0, len(ang) - 2))
+        (a0, t0), (a1, t1) = pts[i], pts[i + 1]
+        w = (angles[0] - a0) / (a1 - a0)
         R = (1 - w) * t0.moment_arms + w * t1.moment_arms
-        fac = np.maximum((1 - w) * t0.strength_factor(fl) + w * t1.strength_factor(fl), 0.0)
+        fac = (1 - w) * t0.strength_factor(fl) + w * t1.strength_factor(fl)
         c = (1 - w) * t0.centres + w * t1.centres
         ax = (1 - w) * t0.axes + w * t1.axes
+        tn = tabs["neutral"]
+        for a, axis in ((angles[1], "roll"), (angles[2], "yaw")):
+            if a == 0.0:
+                continue
+            p, full_angle = next((q, v) for q, (x, v) in POSTURE_AXES.items() if x == axis and v * a > 0)
+            s = a / full_angle
+            t = tabs[p]
+            R = R + s * (t.moment_arms - tn.moment_arms)
+            fac = fac + s * (t.strength_factor(fl) - tn.strength_factor(fl))
+            c = c + s * (t.centres - tn.centres)
+            ax = ax + s * (t.axes - tn.axes)
         ax = ax / np.linalg.norm(ax, axis=1, keepdims=True)
-        return R, fac, c, ax
+        return R, np.maximum(fac, 0.0), c, ax
+
+    def drift_angles(self, inst: Instance, drift: float) -> np.ndarray:
+        """(K x 3) joint-angle change (deg; pitch, roll, yaw) of each test: ``drift`` along the axis shares of the
+        torque its target wrench demands of the model's joints (``J^T u``, summed over the joints)."""
+        model = self.ctx.model
+        m_rows = len(model.coordinates)
+        tau = inst.task_directions(model) @ inst.JT[:m_rows].T            # (K, n0): J = 1 here
+        axis_of = [c.rsplit("_", 1)[1] for c in model.coordinates]
+        per = np.zeros((len(tau), 3))
+        for r, a in enumerate(axis_of):
+            per[:, ("pitch", "roll", "yaw").index(a)] += tau[:, r]
+        nrm = np.linalg.norm(per, axis=1, keepdims=True)
+        return np.where(nrm > 1e-12, drift * per / np.where(nrm > 1e-12, nrm, 1.0), 0.0)
 
     def apply(self, inst, theta):
         from neckstrength.model.reduction import reduce_strengths_and_arms
 
         model, full = self.ctx.model, self.ctx.full
-        m = model.m
+        m, n0 = model.m, len(model.coordinates)
         rows_idx = [COORDINATES.index(c) for c in model.coordinates]
-        if inst.R.shape[1] != m or inst.rows != tuple(model.coordinates):
+        if inst.R.shape != (n0, m) or inst.rows != tuple(model.coordinates) or inst.J != 1:
             raise ValueError("posture_drift must be applied first (to the fitted model's rows and columns)")
-        a0 = float(self.ctx.posture_angle)
-        _, fac0, _, _ = self.state(a0)
-        R, fac, c, ax = self.state(a0 + float(theta[0]))
-        f_neutral = np.where(fac0 > 0, full.strengths / np.where(fac0 > 0, fac0, 1.0), full.strengths)
-        f_g0, _ = reduce_strengths_and_arms(R[rows_idx], f_neutral * fac0, model.S)
-        f_el = f_neutral * fac
-        f_g, R_g = reduce_strengths_and_arms(R[rows_idx], f_el, model.S)
-        ratio = np.where(f_g0 > 0, f_g / np.where(f_g0 > 0, f_g0, 1.0), 0.0)
-        A = inst.A.copy()
-        A[:m] = ratio[:, None] * A[:m]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            elem = np.where(f_g[None, :] > 0, f_el[:, None] * model.S / np.where(f_g > 0, f_g, 1.0)[None, :], 0.0)
-        return replace(inst, R=R_g, A=A, a0=inst.a0 * np.r_[ratio, np.ones(len(inst.a0) - m)], elem=elem,
-                       JT=_jt_rows(c[rows_idx], ax[rows_idx], inst.planar), row_centre=c[rows_idx],
-                       row_axis=ax[rows_idx])
+        set_angles = np.array([-float(self.ctx.posture_angle), 0.0, 0.0])   # ctx.posture_angle: + flexion
+        _, fac0, c0, ax0 = self.state(set_angles)
+        f_set = np.where(fac0 > 0, full.strengths / np.where(fac0 > 0, fac0, 1.0), full.strengths)
+
+        def effective(angles):
+            """Moment arms x group strength ratio to the set posture (n0 x m) and J^T (n0 x d) at ``angles``."""
+            R, fac, c, ax = self.state(angles)
+            f_g, R_g = reduce_strengths_and_arms(R[rows_idx], f_set * fac, model.S)
+            return f_g, R_g, _jt_rows(c[rows_idx], ax[rows_idx], inst.planar)
+
+        f_g0, R_g0, JT0 = effective(set_angles)
+        dang = self.drift_angles(inst, float(theta[0]))
+        K = len(dang)
+        dR = np.zeros((K, n0, m))
+        dJT = np.zeros((K, n0, inst.JT.shape[1]))
+        for k in range(K):
+            f_g, R_g, JT = effective(set_angles + dang[k])
+            ratio = np.where(f_g0 > 0, f_g / np.where(f_g0 > 0, f_g0, 1.0), 0.0)
+            dR[k] = R_g * ratio[None, :] - R_g0
+            dJT[k] = JT - JT0
+        return replace(inst, dR=dR, dJT=dJT)
 
 
 class AnthropometricScaling(Effect):

@@ -58,13 +58,14 @@ class FitSettings:
     exact_gradient: bool = True
 
 
-#: True: the fits' calls (a few strength vectors times every direction) go through the compiled all-direction pass
-#: of :mod:`neckstrength.wrench.fused` (``benchmarks/bench_gap.py --fused`` times it against the default). Off by
-#: default: it returns the same forces (certified, to 1e-9) and on S003 the same diagnosis, but where an optimum is
-#: not unique it may return another optimal vertex than the per-direction solver, and the exact Jacobians built on
-#: it move the fits more than two guarantees allow: a data set's ``direction_tolerance`` fits with the exact window
-#: (p2m7) alone and in a batch, and a resumed batch finding its checkpoints (tests/gap/test_calibrate.py).
-FUSED_SOLVER = False
+#: True (default): the fits' calls (a few strength vectors times every direction) go through the compiled
+#: all-direction pass of :mod:`neckstrength.wrench.fused` (``benchmarks/bench_gap.py --fused`` times it against the
+#: per-direction batched solver, False). Both return certified optimal forces; where the optimum is not unique they may
+#: return different optimal activations, but the exact Jacobians below do not depend on which (the columns in which two
+#: optimal vertices differ have ``lam . R_j = 0``; tests/gap/test_fused_fits.py). The fused pass takes, for each row,
+#: the cached basis with the smallest dual bound (not the previous row's), so a row's answer does not depend on the
+#: rows before it; the batch-independence and resume tests of tests/gap/test_calibrate.py run with it.
+FUSED_SOLVER = True
 
 
 def make_cache(max_bases: int = 512):
@@ -120,6 +121,31 @@ class Simulator:
         self._memo: dict[bytes, tuple] = {}
         self.n_lp = 0
         self.pidx, self.pnames = free_parameters(ctx.model, ctx.tie_sides)
+        # per-test moment arms and J^T (posture_drift): each test's LPs with its own model
+        self._tests = inst.test_matrices()
+        self._test_models = None if self._tests is None else [
+            replace(self.model, moment_arms=R, JT=JT) for R, JT in zip(*self._tests)]
+
+    def _solve(self, Fa: np.ndarray, sel: np.ndarray, return_alpha: bool):
+        """:func:`neckstrength.wrench.solve` on the candidate rows ``sel`` (K*J mask) for column strengths ``Fa``;
+        with per-test matrices (``Instance.dR``) one call per test, with that test's model."""
+        if self._test_models is None:
+            return solve(self.model, Fa, self.U[sel], self.lb[sel], self.ub[sel], return_alpha=return_alpha,
+                         chunk_size=self.chunk, cache=self.cache)
+        idx = np.flatnonzero(sel)
+        test = idx // self.inst.J
+        w = np.zeros((len(Fa), len(idx)))
+        status = np.zeros((len(Fa), len(idx)), dtype=np.int8)
+        alpha = np.zeros((len(Fa), len(idx), Fa.shape[1])) if return_alpha else None
+        for k in np.unique(test):
+            c = np.flatnonzero(test == k)
+            r = idx[c]
+            wk, ak, sk = solve(self._test_models[k], Fa, self.U[r], self.lb[r], self.ub[r],
+                               return_alpha=return_alpha, chunk_size=self.chunk, cache=self.cache)
+            w[:, c], status[:, c] = wk, sk
+            if return_alpha:
+                alpha[:, c] = ak
+        return w, alpha, status
 
     @property
     def K(self) -> int:
@@ -141,9 +167,7 @@ class Simulator:
         N, K, J = len(F), self.K, self.inst.J
         use = self.active if (active_only and J > 1) else self.alive
         sel = use.ravel()
-        w_s, alpha_s, status_s = solve(self.model, Fa, self.U[sel], self.lb[sel], self.ub[sel],
-                                                  return_alpha=return_alpha, chunk_size=self.chunk,
-                                                  cache=self.cache)
+        w_s, alpha_s, status_s = self._solve(Fa, sel, return_alpha)
         self.n_lp += w_s.size
         w = np.full((N, K * J), -1.0)
         w[:, sel] = np.where(np.isfinite(w_s) & (status_s == _OPT), w_s, 0.0)
@@ -177,8 +201,16 @@ class Simulator:
         keys = [r.tobytes() for r in F]
         todo = sorted({kk: i for i, kk in enumerate(keys) if kk not in memo}.values())
         if todo:
-            f_new, _, W_new = self.window.solve(self.model.moment_arms, self.model.JT, self.inst.strengths(F[todo]),
-                                                self.inst.lb, self.inst.ub)
+            Fa = self.inst.strengths(F[todo])
+            if self._tests is None:
+                f_new, _, W_new = self.window.solve(self.model.moment_arms, self.model.JT, Fa, self.inst.lb,
+                                                    self.inst.ub)
+            else:       # each test's window with its own matrices
+                parts = [replace(self.window, specs=(spec,)).solve(self._tests[0][k], self._tests[1][k], Fa,
+                                                                   self.inst.lb[k:k + 1], self.inst.ub[k:k + 1])
+                         for k, spec in enumerate(self.window.specs)]
+                f_new = np.concatenate([q[0] for q in parts], axis=1)
+                W_new = np.concatenate([q[2] for q in parts], axis=1)
             if len(memo) + len(todo) > 20000:
                 memo.clear()
             for a, i in enumerate(todo):
@@ -352,8 +384,7 @@ class Simulator:
         N, K, J = len(Fm), self.K, inst.J
         use = self.active if J > 1 else np.ones((K, J), bool)
         sel = use.ravel()
-        w_s, alpha_s, status_s = solve(self.model, Fa, self.U[sel], self.lb[sel], self.ub[sel],
-                                       return_alpha=True, chunk_size=self.chunk, cache=self.cache)
+        w_s, alpha_s, status_s = self._solve(Fa, sel, True)
         self.n_lp += w_s.size
         ok = np.isfinite(w_s) & (status_s == _OPT) & (w_s > 0)
         w_s = np.where(ok, w_s, 0.0)
@@ -391,16 +422,22 @@ class Simulator:
         tol = 1e-7
         interior = (al > lb + tol) & (al < ub - tol) & (Fa[:, None, :] > 0)
         Rm = self.model.moment_arms                              # (n, m')
-        bs = (self.model.JT @ self.U[sel].T).T                   # (S, n)
-        b = bs[s_of]                                             # (N, K, n)
         n = Rm.shape[0]
-        RR = (Rm[:, None, :] * Rm[None, :, :]).reshape(n * n, -1).T          # (m', n*n) outer products R_j R_j'
-        G = (interior.reshape(N * K, -1).astype(float) @ RR).reshape(N, K, n, n)
+        if self._tests is None:
+            bs = (self.model.JT @ self.U[sel].T).T               # (S, n)
+            b = bs[s_of]                                         # (N, K, n)
+            RR = (Rm[:, None, :] * Rm[None, :, :]).reshape(n * n, -1).T      # (m', n*n) outer products R_j R_j'
+            G = (interior.reshape(N * K, -1).astype(float) @ RR).reshape(N, K, n, n)
+        else:                                                    # test k's own R_k and J^T_k
+            Rk, JTk = self._tests
+            b = np.einsum("kad,nkd->nka", JTk, self.U[sel][s_of])
+            G = np.einsum("nkj,kaj,kbj->nkab", interior.astype(float), Rk, Rk)
         G += b[..., :, None] * b[..., None, :]
         scale = np.trace(G, axis1=2, axis2=3)[..., None, None]
         G += 1e-12 * np.maximum(scale, 1e-30) * np.eye(n)[None, None]
         lam = np.linalg.solve(G, b[..., None])[..., 0]                                     # (N, K, n)
-        gcol = (lam @ Rm) * al * okg[..., None]                                             # dw/dFa (N, K, m')
+        lamR = lam @ Rm if self._tests is None else np.einsum("nka,kaj->nkj", lam, self._tests[0])
+        gcol = lamR * al * okg[..., None]                                                   # dw/dFa (N, K, m')
         gcol = gcol * (Fa > 0)[:, None, :]
         gmus = gcol @ inst.A                                     # dw/dF base muscles (N, K, m)
         g = gmus * self.fmul.reshape(-1)[sel][s_of][..., None]
