@@ -69,28 +69,56 @@ def test_resampling_weights_are_unbiased(setup):
 
 
 def test_early_rejection_and_threads_leave_the_chain_unchanged(setup):
-    """Early rejection in the Metropolis-Hastings moves (proposals dropped once their partial log-likelihood cannot
-    reach the acceptance threshold) and solver threads are speed only: the candidates, wrenches and weights after
-    updates with resample-move are those of the reference (every proposal solved in every tested direction, one
-    thread), to the solver's rounding; and early rejection did skip LPs."""
+    """Early rejection in the Metropolis-Hastings moves (proposals dropped once their partial log-likelihood, plus the
+    dual bounds of the terms not solved yet, cannot reach the acceptance threshold) and solver threads are speed only:
+    the candidates, wrenches and weights after updates with resample-move are those of the reference (every proposal
+    solved in every tested direction, one thread), to the solver's rounding, with the same acceptance rate; early
+    rejection skipped LPs, and the dual bounds skipped more."""
     _, data, _ = setup
     runs = {}
-    for label, early, threads in (("reference", False, 1), ("early", True, 1), ("early+threads", True, 2)):
+    for label, early, bound, threads in (("reference", False, False, 1), ("early", True, False, 1),
+                                         ("early+bound", True, True, 1), ("early+bound+threads", True, True, 2)):
         post = _post(setup, n=3000, seed=7, resample_ess=0.3)
         post.early_reject = early
+        post.dual_bound_reject = bound
         post.n_threads = threads
         for d in data.directions[:4]:
             post.update(d, 1.1 * data.forces[data.directions.index(d)])
         runs[label] = post
     ref = runs["reference"]
     assert ref.n_resamples >= 2 and 0.02 < ref.last_acceptance < 0.98
-    for label in ("early", "early+threads"):
+    for label in ("early", "early+bound", "early+bound+threads"):
         post = runs[label]
         assert post.n_resamples == ref.n_resamples
+        assert post.last_acceptance == ref.last_acceptance
         np.testing.assert_allclose(post.F, ref.F, rtol=1e-12)
         np.testing.assert_allclose(post.W, ref.W, rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(post.weights(), ref.weights(), rtol=1e-9, atol=1e-15)
         assert post.n_lps < ref.n_lps, (label, post.n_lps, ref.n_lps)
+    assert runs["early+bound"].n_lps < runs["early"].n_lps, (runs["early+bound"].n_lps, runs["early"].n_lps)
+
+
+def test_dual_bounds_bound_every_term_from_above(setup):
+    """The LP-free bounds of the moves (JointPosterior._loglik_upper_bounds: weak duality with the cached bases' dual
+    vectors) are at least the exact log-likelihood terms of random strength vectors around the candidates, and equal
+    to them (the smallest bound is the optimum) for most where the wrench is below the measured force; a wrong bound
+    (the term at the bound also where the bound exceeds the measured force, or the largest bound over the bases
+    instead of the smallest) fails one of the two checks."""
+    _, data, _ = setup
+    post = _post(setup, n=2000, seed=3)
+    for d in data.directions[:3]:
+        post.update(d, 0.8 * data.forces[data.directions.index(d)])
+    cols = post._tested_cols()
+    rng = np.random.default_rng(0)
+    F = post.F[rng.integers(len(post.F), size=3000)] * np.exp(0.2 * rng.standard_normal((3000, post.model.m)))
+    W = post._wrenches(F, cols)
+    exact = post._loglik_cols(W, cols)
+    bound = post._loglik_upper_bounds(F, cols)
+    assert np.all(bound >= exact - 1e-9 * np.abs(exact)), float((bound - exact).min())
+    # the bound informs where the wrench is below the measured force
+    below = W[:, cols] < np.array([t["w_meas"] for t in post.tests])
+    assert below.mean() > 0.2
+    assert np.mean(np.isclose(bound[below], exact[below], rtol=1e-4)) > 0.5
 
 
 def test_mc_se_is_the_iid_error_before_resampling_and_tracks_the_spread_after(setup):

@@ -535,7 +535,7 @@ class DeficitDecision:
                 return float("nan")
             cols = np.array([t["i"] for t in p.tests])
             wm = np.array([t["w_meas"] for t in p.tests])
-            rel = (p.W[:, cols] - wm) / wm
+            rel = (p.wrenches_in(cols) - wm) / wm     # the tested columns only (the others stay deferred)
             best = min(best, float(np.sqrt((rel ** 2).mean(axis=1)).min()))
         return best
 

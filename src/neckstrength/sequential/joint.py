@@ -162,6 +162,13 @@ class JointPosterior:
         self._stale = np.zeros(0, int)          # columns of _W not yet solved for the current candidates
         self._uid = None                        # per candidate: equal ids are copies of one candidate (solved once)
 
+    def wrenches_in(self, cols) -> np.ndarray:
+        """Max wrenches (N x len(cols)) of the candidates in the tests ``cols`` only (deferred ones among them solved;
+        :attr:`W` solves every deferred column)."""
+        cols = np.atleast_1d(np.asarray(cols, int))
+        self._fresh_cols(cols)
+        return self._W[:, cols]
+
     def _fresh_cols(self, cols) -> None:
         """Solve the deferred columns among ``cols`` (all if None) for the current candidates, once per distinct
         candidate (copies of one candidate share its row, as in :meth:`_move`)."""
@@ -478,15 +485,31 @@ class JointPosterior:
     #: than this (the full sum, added in another order, then cannot reach it either)
     EARLY_REJECT_MARGIN = 1e-9
 
+    #: LP-free exact rejection in the Metropolis-Hastings moves (with :attr:`early_reject`): every cached basis's dual
+    #: vector ``d`` bounds the maximum wrench from above, ``w*(f) <= d . f`` for every ``f`` (weak duality), so each
+    #: test's log-likelihood term is at most its value at the smallest such bound (0 where the bound reaches the
+    #: measured force); a proposal whose summed bounds cannot reach its acceptance threshold is rejected without an LP
+    #: (False: the LPs decide every rejection; the same chain either way)
+    dual_bound_reject = True
+
+    #: the bound of each test: the smallest over this many most recently hit bases of its direction's solver
+    DUAL_BOUND_BASES = 16
+
+    #: the bounds are widened by this relative amount before use (the solver's answers are exact to its tolerances,
+    #: about 1e-11 relative; a bound that is off by its rounding must not reject a proposal the reference accepts)
+    DUAL_BOUND_SLACK = 1e-6
+
     def _wrenches_early_reject(self, Fp: np.ndarray, tested: np.ndarray, need: np.ndarray,
                                W_cur: np.ndarray) -> np.ndarray:
         """Wrenches of the proposals ``Fp`` in the ``tested`` directions for the Metropolis-Hastings step, with
         early rejection (Solonen et al. 2012): a proposal is accepted iff its log-likelihood ``sum_s phi_s l_s``
-        exceeds ``need`` (log u minus the prior, Jacobian and current-state terms). Every term ``l_s`` is <= 0, so
-        once the terms solved so far fall below ``need`` the proposal is rejected whatever the others are, and its
-        remaining directions are not solved. The directions go in groups of ``n_threads`` (solved concurrently).
-        Rows left with NaN are rejected ones; the accepted ones have every tested direction, so the chain is the
-        same as with every LP solved (to the solver's rounding: a row's wrench does not depend on its batch)."""
+        exceeds ``need`` (log u minus the prior, Jacobian and current-state terms). Every term ``l_s`` is <= 0 and at
+        most its value at the dual bound of the wrench (:attr:`dual_bound_reject`), so once the terms solved so far
+        plus the bounds of the others fall below ``need`` the proposal is rejected whatever the others are, and its
+        remaining directions are not solved (before any LP, where the bounds alone decide). The directions go in
+        groups of ``n_threads`` (solved concurrently). Rows left with NaN are rejected ones; the accepted ones have
+        every tested direction, so the chain is the same as with every LP solved (to the solver's rounding: a row's
+        wrench does not depend on its batch)."""
         N, K = len(Fp), len(self.directions)
         Wp = np.full((N, K), np.nan)
         if not len(tested):
@@ -499,6 +522,11 @@ class JointPosterior:
             Wp[:, tested] = self._wrenches(Fp, tested)[:, tested]
             return Wp
         alive = np.flatnonzero(need < 0.0)        # need >= 0: rejected whatever the likelihood (it is <= 0)
+        # upper bounds of the terms not solved yet (0: no bound), one column per direction of ``order``
+        ub = (self._loglik_upper_bounds(Fp[alive], order) if self.dual_bound_reject and alive.size
+              else np.zeros((alive.size, len(order))))
+        keep = ub.sum(axis=1) > need[alive] - self.EARLY_REJECT_MARGIN
+        alive, ub = alive[keep], ub[keep]
         g = max(1, int(self.n_threads))
         for s0 in range(0, len(order), g):
             if not alive.size:
@@ -509,8 +537,57 @@ class JointPosterior:
                 t = by_col.get(int(c))
                 if t is not None:
                     ll[alive] += t["phi"] * self._test_loglik(Wp[alive, c], t["w_meas"])
-            alive = alive[ll[alive] > need[alive] - self.EARLY_REJECT_MARGIN]
+            keep = ll[alive] + ub[:, s0 + g:].sum(axis=1) > need[alive] - self.EARLY_REJECT_MARGIN
+            alive, ub = alive[keep], ub[keep]
         return Wp
+
+    def _dual_bound_matrix(self, c: int) -> np.ndarray | None:
+        """(m x k) dual vectors of the most recently hit cached bases of direction ``c`` (unbounded, this
+        posterior's model and cache), or None where there is none or the wrenches come from elsewhere (a subclass's
+        solver, activation bounds)."""
+        if type(self)._solve_all is not JointPosterior._solve_all:
+            return None
+        memo = getattr(self, "_dual_solvers", None)
+        if memo is None or memo[0] is not self.cache:
+            memo = self._dual_solvers = (self.cache, {})
+        solver = memo[1].get(c)
+        if solver is None:
+            # the solver the batched call made for this direction (its b = J^T u as that call rounds it)
+            R = np.asarray(self.model.moment_arms, float)
+            b = np.asarray(self.model.JT, float) @ self.U[c]
+            found = [e for e in self.cache.entries()
+                     if e.R.shape == R.shape and np.array_equal(e.b, b) and not e.lb.any() and np.all(e.ub == 1.0)
+                     and np.array_equal(e.R, R)]
+            if not found:
+                return None
+            solver = memo[1][c] = max(found, key=lambda e: len(e.bases))
+        bases = solver.bases[:self.DUAL_BOUND_BASES]
+        if not bases:
+            return None
+        return np.array([bb.dvec for bb in bases]).T
+
+    def _loglik_upper_bounds(self, F: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(len(F) x len(cols)) upper bounds of the terms ``phi_s l_s`` of candidates ``F`` (:attr:`dual_bound_reject`):
+        ``l_s`` at the smallest dual bound of the wrench where that is below the measured force, else 0 (also where
+        there is no bound)."""
+        by_col = {t["i"]: t for t in self.tests if t["phi"] > 0}
+        out = np.zeros((len(F), len(cols)))
+        use, mats = [], []
+        for k, c in enumerate(cols):
+            t = by_col.get(int(c))
+            D = None if t is None or t["bounds"] is not None else self._dual_bound_matrix(int(c))
+            if D is not None:
+                use.append((k, t, D.shape[1]))
+                mats.append(D)
+        if not use:
+            return out
+        V = np.vstack([D.T for D in mats]) @ F.T            # (bases of every direction) x candidates
+        s0 = 0
+        for k, t, nb in use:
+            u = V[s0:s0 + nb].min(axis=0) * (1.0 + self.DUAL_BOUND_SLACK)
+            s0 += nb
+            out[:, k] = np.where(u < t["w_meas"], t["phi"] * self._test_loglik(u, t["w_meas"]), 0.0)
+        return out
 
     def _loglik_cols(self, W: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(N x len(cols)) per-test terms ``phi_s l_s`` of the candidates' wrenches ``W`` (0 for phi = 0)."""
