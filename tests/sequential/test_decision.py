@@ -570,6 +570,15 @@ def test_a_protocols_cache_signature_depends_on_what_its_runs_depend_on_only():
     assert sig(b, "alg4", "abc1") != sig(b, "alg4", "abc2") and sig(b, "forces", None) != sig(dc_replace(
         b, n_max=10), "forces", None)
     assert sig(a, "forces") != _protocol_signature(dc_replace(s, noise=0.08), a, js, 1, "s3m24", "forces", None)
+    # a settings field added later at its default keeps the runs made before it existed
+    from dataclasses import make_dataclass
+
+    from neckstrength.pipeline.clinician import _lean_repr
+
+    Old = make_dataclass("S", [("a", int, 1)])
+    New = make_dataclass("S", [("a", int, 1), ("b", float, 0.5)])
+    assert _lean_repr(Old()) == _lean_repr(New()) != _lean_repr(New(b=0.6))
+    assert _lean_repr(New(a=2)) == _lean_repr(Old(a=2)) == "S(a=2)"
     # measuring fewer patients under a protocol keeps the runs it has (each run is one patient's own)
     d = dc_replace(b, patients_per_kind=(("alg4", 3),))
     assert sig(b, "alg4", "abc1") == sig(d, "alg4", "abc1") and sig(b, "forces") == sig(d, "forces")

@@ -65,9 +65,31 @@ def surface_directions(model, head, study):
     return list(d["name"]), U, d["force_scale"].to_numpy(float)
 
 
+def _lean_repr(obj) -> str:
+    """``repr`` of a settings dataclass without the fields at their defaults (recursively), so a field added to a
+    settings class later, at a default that keeps the old behaviour, leaves the caches of earlier runs valid."""
+    from dataclasses import MISSING, fields, is_dataclass
+
+    if not is_dataclass(obj) or isinstance(obj, type):
+        return repr(obj)
+    parts = []
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        d = f.default if f.default is not MISSING else (f.default_factory() if f.default_factory is not MISSING
+                                                        else MISSING)
+        try:
+            same = d is not MISSING and type(v) is type(d) and bool(v == d)
+        except (TypeError, ValueError):           # arrays and the like: compared by their repr
+            same = False
+        if not same:
+            parts.append(f"{f.name}={_lean_repr(v)}")
+    return f"{type(obj).__name__}({', '.join(parts)})"
+
+
 def _signature(definition, study, joint, thesis, seed: int, model_name: str) -> str:
-    return hashlib.sha256(json.dumps(plain({"def": repr(definition), "study": repr(study), "joint": repr(joint),
-                                            "thesis": repr(thesis), "seed": seed, "model": model_name}),
+    return hashlib.sha256(json.dumps(plain({"def": _lean_repr(definition), "study": _lean_repr(study),
+                                            "joint": _lean_repr(joint), "thesis": _lean_repr(thesis), "seed": seed,
+                                            "model": model_name}),
                                      sort_keys=True).encode()).hexdigest()[:16]
 
 
