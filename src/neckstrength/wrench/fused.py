@@ -11,13 +11,14 @@ up to ``capacity`` optimal bases as the same linear maps the batched solver cach
 :func:`neckstrength.wrench.simplex.make_basis`: checks ``CW``, basic map ``T``, dual bound ``dvec``, inverse),
 packed in arrays, and :func:`_fused_solve` answers every (row, direction) of a call in one compiled loop:
 
-1. the slot's most recently successful basis is checked (primal feasibility with the batched solver's
-   tolerances, ``CW[:q] f >= 0``); a dual feasible basis that passes is optimal;
-2. else the basis with the smallest dual bound ``dvec . f`` (weak duality) is checked;
-3. else the slot's cached Farkas certificates (copied from the batched solver) may prove the row infeasible;
-4. else the compiled dual simplex runs from that basis and its final basis is certified from scratch
+1. the basis with the smallest dual bound ``dvec . f`` (weak duality; equal to ``w*`` for an optimal basis) is
+   checked (primal feasibility with the batched solver's tolerances, ``CW[:q] f >= 0``); a dual feasible basis that
+   passes is optimal. (Checking the previous row's basis first was cheaper, but made a row's answer, where the
+   optimum is not unique, depend on the row before it; see ``FusedStore``'s note on history);
+2. else the slot's cached Farkas certificates (copied from the batched solver) may prove the row infeasible;
+3. else the compiled dual simplex runs from that basis and its final basis is certified from scratch
    (:func:`neckstrength.wrench.simplex._certify`, the tests the batched solver applies) and learned;
-5. what is left (a failed certificate, a suspected infeasibility, a direction without a first basis) goes back
+4. what is left (a failed certificate, a suspected infeasibility, a direction without a first basis) goes back
    to the batched solver, and so to HiGHS.
 
 Every answer is therefore a certified optimal basis, as in the batched solver: the forces agree with HiGHS to the
@@ -244,25 +245,20 @@ def _fused_solve(F, slots, unbounded, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE,
         have_AT = False
         for i in range(N):
             f = F[i]
-            c = last[s]
+            # the cached basis with the smallest dual bound (the lowest index among equal bounds), whatever the
+            # previous row took: a row's answer depends on the slot's bases, not on the order of the rows
+            c = -1
             ok = False
-            if c >= 0 and c < nb[s]:
+            bv = np.inf
+            for cc in range(nb[s]):
+                v = 0.0
+                for j in range(m):
+                    v += dvec[s, cc, j] * f[j]
+                if v < bv:
+                    bv = v
+                    c = cc
+            if c >= 0:
                 ok = _check(CW[s, c], qv[s, c], f, m)
-            if not ok and nb[s] > 0:
-                best = 0
-                bv = np.inf
-                for cc in range(nb[s]):
-                    v = 0.0
-                    for j in range(m):
-                        v += dvec[s, cc, j] * f[j]
-                    if v < bv:
-                        bv = v
-                        best = cc
-                if best != c:
-                    c = best
-                    ok = _check(CW[s, c], qv[s, c], f, m)
-                else:
-                    c = best
             if ok:
                 w = _answer(CW[s, c], qv[s, c], wb[s, c], T4[s, c], SB[s, c], SS[s, c], f, LB[s], UB[s],
                             want_alpha, alpha_tmp, n, m)
