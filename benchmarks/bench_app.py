@@ -9,9 +9,10 @@ same tests with the participant's forces, step by step and interleaved, so all t
   until its JSON answer, which carries the next proposal and everything the page shows, is parsed;
 - ``engine``: the engine called directly as the terminal does: ``Session.tell`` then ``Session.propose`` (what the
   screen needs to show the next test);
-- ``reference``: the same engine with its two speed switches off (``Session.one_blas_thread`` and
+- ``reference``: the same engine with its speed switches off (``Session.one_blas_thread`` and
   ``Session.concurrent_decision`` False: numpy's BLAS multi-threaded and the deficit decision updated after the
-  joint posterior, as before 2026-11-28), ``tell`` then ``propose``.
+  joint posterior in the same process, as before 2026-11-28; ``JointPosterior.dual_bound_reject`` False in its
+  samplers: every Metropolis-Hastings rejection decided by LPs), ``tell`` then ``propose``.
 
 Participants (``--participants``): the thesis's 'norm' and 'weak' data sets (Table 5.3 f_a, forces = the model's
 maximum force of f_a), and simulated ones made here: ``sim-deficit-<i>`` (every muscle f'_base x log-normal sd
@@ -20,7 +21,8 @@ forces with 5% log-normal noise, streams ``bench_app/<participant>`` of the conf
 
 Printed per step and summarised per session kind over every step of every participant: median, p95 and max step
 time and the count within 1 s; the ratios engine / reference (the speed-up, same run, same load) and app / engine
-(the web layer's cost). The proposals and estimates of the three sessions are checked equal at every step.
+(the web layer's cost). The proposals, estimates and decisions of the three sessions are checked equal at every
+step (app and engine exactly, the reference to the solver's rounding, 1e-9 relative).
 
 Run from the repository root::
 
@@ -64,6 +66,32 @@ def participant_forces(name: str, model, U, force_scale, cfg, group_idx) -> np.n
     return w[0] / np.asarray(force_scale) * np.exp(0.05 * rng.standard_normal(len(force_scale)))
 
 
+def _cpu_of(pid: int) -> float:
+    """CPU seconds (user + system) of process ``pid`` so far (Linux; NaN elsewhere)."""
+    try:
+        f = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+        return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+
+
+def _assert_close(a, b, path: str) -> None:
+    """``a == b`` with floats equal to 1e-9 relative / 1e-12 absolute (the solver's rounding: the reference's samplers
+    solve other LPs, so their basis caches, and the last digits of some wrenches, differ)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and set(a) == set(b), path
+        for k in a:
+            _assert_close(a[k], b[k], f"{path}/{k}")
+    elif isinstance(a, (list, tuple)):
+        assert isinstance(b, (list, tuple)) and len(a) == len(b), path
+        for k, (x, y) in enumerate(zip(a, b)):
+            _assert_close(x, y, f"{path}[{k}]")
+    elif isinstance(a, float) and isinstance(b, float):
+        assert (np.isnan(a) and np.isnan(b)) or abs(a - b) <= 1e-12 + 1e-9 * abs(b), (path, a, b)
+    else:
+        assert a == b, (path, a, b)
+
+
 def _stats(x: np.ndarray) -> str:
     return (f"median {np.median(x):.3f} s, p95 {np.percentile(x, 95):.3f} s, max {x.max():.3f} s, "
             f"within 1 s {int((x <= 1.0).sum())} of {len(x)}")
@@ -98,7 +126,8 @@ def main(argv=None) -> int:
     print(f"# bench_app: {platform.machine()} {platform.system()} {platform.release()}, python "
           f"{platform.python_version()}, cpus {len(os.sched_getaffinity(0))}, load average "
           f"{os.getloadavg()[0]:.2f}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}", flush=True)
-    times: dict[str, list[float]] = {"app": [], "engine": [], "reference": []}
+    times: dict[str, list[float]] = {"app": [], "engine": [], "reference": [], "cpu_main": [], "cpu_worker": [],
+                                   "cpu_reference": []}
     loads = []
     with tempfile.TemporaryDirectory() as tmp:
         cache = str(Path(tmp) / "cache")
@@ -121,6 +150,10 @@ def main(argv=None) -> int:
             eng = Session.create(Path(tmp) / f"engine-{pi}", opts, threads=a.threads)
             t_eng = time.perf_counter() - t0
             ref = None if a.no_reference else Reference.create(Path(tmp) / f"ref-{pi}", opts, threads=a.threads)
+            if ref is not None:
+                posts = [getattr(ref.state, "post", None)] + list(ref.decision.posts.values() if ref.decision else [])
+                for post in filter(None, posts):
+                    post.dual_bound_reject = False
             body = {"name": f"p{pi}", "model": a.model, "participant": who}
             body.update({k: v for k, v in (("n_candidates", a.n_candidates), ("seed", a.seed)) if v is not None})
             t0 = time.perf_counter()
@@ -137,17 +170,23 @@ def main(argv=None) -> int:
             for k in range(min(a.steps, len(eng.directions))):
                 test = prop["test"]
                 f = float(round(forces[eng.directions.index(test)], 1))
+                wpid = getattr(getattr(eng.decision, "_proc", None), "pid", None)
+                c0, w0 = time.process_time(), (_cpu_of(wpid) if wpid else 0.0)
                 t0 = time.perf_counter()
                 eng.tell(Entry("measure", test, f))
                 prop = eng.propose()
                 t_e = time.perf_counter() - t0
+                c_e, c_w = time.process_time() - c0, (_cpu_of(wpid) if wpid else 0.0) - w0
                 t_r = np.nan
+                c_r = np.nan
                 if ref is not None:
+                    c0 = time.process_time()
                     t0 = time.perf_counter()
                     ref.tell(Entry("measure", test, f))
                     rprop = ref.propose()
                     t_r = time.perf_counter() - t0
-                    assert rprop == prop, (who, k, "reference and engine differ")
+                    c_r = time.process_time() - c0
+                    _assert_close(rprop, prop, f"{who} step {k + 1}: proposal")
                 t0 = time.perf_counter()
                 r = client.post(f"/api/sessions/p{pi}/tell", json={"test": test, "force_N": f})
                 r.raise_for_status()
@@ -158,14 +197,21 @@ def main(argv=None) -> int:
                 assert got == want, (got, want)
                 assert snap["estimate"] == eng.snapshot()["estimate"]
                 if ref is not None:
-                    assert ref.snapshot()["estimate"] == snap["estimate"]
+                    rs = ref.snapshot()
+                    _assert_close(rs["estimate"], snap["estimate"], f"{who} step {k + 1}: estimate")
+                    _assert_close(rs["decision"], snap["decision"], f"{who} step {k + 1}: decision")
                 load = os.getloadavg()[0]
                 loads.append(load)
                 times["app"].append(t_a)
                 times["engine"].append(t_e)
                 times["reference"].append(t_r)
-                print(f"{who} step {k + 1:2d}: {test:>14} {f:7.1f} N  app {t_a:.3f} s  engine {t_e:.3f} s  "
-                      f"reference {t_r:.3f} s  (load {load:.1f})", flush=True)
+                times["cpu_main"].append(c_e)
+                times["cpu_worker"].append(c_w)
+                times["cpu_reference"].append(c_r)
+                print(f"{who} step {k + 1:2d}: {test:>14} {f:7.1f} N  app {t_a:.3f} s  engine {t_e:.3f} s (CPU "
+                      f"{c_e:.2f} s + decision worker {c_w:.2f} s)  reference {t_r:.3f} s (CPU {c_r:.2f} s)  (load "
+                      f"{load:.1f})",
+                      flush=True)
                 if prop is None or prop["test"] is None:
                     break
             _summary(a, who, times, loads, eng.settings.n_candidates)
@@ -189,6 +235,21 @@ def _summary(a, upto: str, times: dict, loads: list, n: int) -> None:
         print(f"  engine / reference: ratio of medians {np.median(e) / np.median(rf):.2f}, of maxima "
               f"{e.max() / rf.max():.2f}, of totals {e.sum() / rf.sum():.2f}")
     print(f"  app / engine: ratio of medians {np.median(ap_) / np.median(e):.2f}", flush=True)
+    cm, cw = np.array(times["cpu_main"]), np.array(times["cpu_worker"])
+    if len(cm):
+        # CPU seconds per step: the session's process (all its threads) and the decision's worker process. Each
+        # process's Python holds its interpreter lock most of the time, so on a quiet two-core machine a step takes
+        # about the larger of the two (and at least half their sum): an estimate that the load here inflates less
+        # than the wall-clock times (CPU time grows with the load too: shared caches)
+        est = np.maximum(np.maximum(cm, cw), 0.5 * (cm + cw))
+        print(f"  engine CPU per step: session process median {np.median(cm):.3f} s, max {cm.max():.3f} s; decision "
+              f"worker median {np.median(cw):.3f} s, max {cw.max():.3f} s; quiet two-core estimate (the larger, at "
+              f"least half the sum): {_stats(est)}", flush=True)
+        cr = np.array(times["cpu_reference"])
+        if not a.no_reference:
+            print(f"  reference CPU per step (one process, the decision after the joint posterior): "
+                  f"{_stats(cr)}; estimate / reference CPU: ratio of maxima {est.max() / cr.max():.2f}, of totals "
+                  f"{est.sum() / cr.sum():.2f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from neckstrength.session import Session, SessionOptions, run_interactive
+from neckstrength.session.worker import DecisionProcess
 
 ROOT = Path(__file__).resolve().parents[2]
 CFG = str(ROOT / "config" / "config.ci.yaml")      # clinician.session.s3m24: joint_eig, N 300
@@ -114,10 +115,11 @@ def _assert_close(a, b, path="snapshot"):
 
 def test_speed_switches_change_no_number(tmp_path):
     """The engine's speed switches (numpy's BLAS on one thread; the deficit decision updated beside the joint
-    posterior in a second thread) change no number: with both off (the reference of benchmarks/bench_app.py) the same
-    entries give the same snapshot, decision included, after every step and after an undo; a failing decision update
-    leaves the joint posterior as it was. The samplers' untested wrenches deferred until read
-    (JointPosterior.defer_untested) change none beyond the solver's rounding."""
+    posterior in a worker process, or in a thread) change no number: with both off (the reference of
+    benchmarks/bench_app.py) the same entries give the same snapshot, decision included, after every step and after
+    an undo; a failing decision update leaves the joint posterior as it was. The samplers' untested wrenches deferred until read
+    (JointPosterior.defer_untested) and their LP-free rejections (JointPosterior.dual_bound_reject) change none beyond
+    the solver's rounding."""
 
     class Reference(Session):
         one_blas_thread = False
@@ -127,25 +129,44 @@ def test_speed_switches_change_no_number(tmp_path):
     s = Session.start(tmp_path / "a", opts, threads=2)
     r = Reference.start(tmp_path / "b", opts, threads=2)
     u = Reference.start(tmp_path / "u", opts, threads=2)
+
+    class InThread(Session):              # the decision in a second thread of this process
+        decision_process = False
+
+    t = InThread.start(tmp_path / "t", opts, threads=2)
     assert s.decision is not None
-    for post in (u.state.post, *u.decision.posts.values()):    # the untested wrenches solved after every move
-        post.defer_untested = False
+    for post in (u.state.post, *u.decision.posts.values()):    # the untested wrenches solved after every move,
+        post.defer_untested = False                             # every rejection decided by LPs
+        post.dual_bound_reject = False
     for line in ("150", "120", "undo", "125", "90"):
         s.tell(line)
         r.tell(line)
         u.tell(line)
-        a, b, c = s.snapshot(), r.snapshot(), u.snapshot()
-        a.pop("screen"), b.pop("screen"), c.pop("screen")
-        assert a == b and a["decision"]["log_bf"] == b["decision"]["log_bf"]
+        t.tell(line)
+        a, b, c, d = s.snapshot(), r.snapshot(), u.snapshot(), t.snapshot()
+        a.pop("screen"), b.pop("screen"), c.pop("screen"), d.pop("screen")
+        assert a == b == d and a["decision"]["log_bf"] == b["decision"]["log_bf"] == d["decision"]["log_bf"]
         # the deferral solves the same LPs in other batches: equal to the solver's rounding
         _assert_close(b, c)
     before = s.snapshot()
 
-    def broken(*_args, **_kw):
+    assert isinstance(s.decision, DecisionProcess) and not isinstance(r.decision, DecisionProcess)
+    assert not isinstance(t.decision, DecisionProcess)
+    real_wait = s.decision.push_wait
+
+    def broken():
+        real_wait()                   # the worker applied the push: undone there, as a failing decision restores itself
+        s.decision.undo()
         raise RuntimeError("decision failed")
 
-    s.decision.push = broken
+    s.decision.push_wait = broken
     with pytest.raises(RuntimeError, match="decision failed"):
         s._push(s.state.likelihood(s.state.remaining[0], 100.0))
-    del s.decision.push
+    del s.decision.push_wait
     assert s.snapshot() == before
+    s.tell("110")                     # the worker in step with the session after the failure (the undone push's
+    r.tell("110")                     # LPs left bases in its caches: equal to the solver's rounding)
+    a, b = s.snapshot(), r.snapshot()
+    a.pop("screen"), b.pop("screen")
+    _assert_close(a, b)
+    assert a["decision"]["trend"][:-1] == b["decision"]["trend"][:-1]

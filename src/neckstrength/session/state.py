@@ -185,6 +185,9 @@ class Session:
     #: the numbers are the same either way)
     one_blas_thread = True
     concurrent_decision = True
+    #: with ``concurrent_decision``: the decision in a worker process of its own (session/worker.py) rather than a
+    #: thread, so the two do not share Python's interpreter lock (False: a thread; the numbers are the same)
+    decision_process = True
 
     def __init__(self, out: str | Path, opts: SessionOptions, settings: SessionSettings, inputs: SessionInputs,
                  progress: Callable[[str], None] | None = None, threads: int | None = None):
@@ -260,10 +263,21 @@ class Session:
             progress(f"joint posterior: {s.n_candidates} candidates x {len(self.directions)} {what} "
                      f"({self.model.name}), criterion {crit} ...")
             t0 = time.time()
+            dec = self._decision_inputs(cs)
+            worker = None
+            if dec is not None and self.concurrent_decision and self.decision_process:
+                from neckstrength.session.worker import DecisionProcess
+
+                # built in its worker process while the joint posterior starts here
+                worker = DecisionProcess().build_start(*dec, one_blas_thread=self.one_blas_thread)
             self.state = self._joint_state()
             self.key = self.state.key
             progress(f"  ready in {time.time() - t0:.1f} s")
-            self.decision = self._decision(cs)
+            if dec is not None:
+                t0 = time.time()
+                self.decision = worker.build_wait() if worker is not None else self._decision(*dec)
+                progress(f"deficit decision: {self.decision.settings.n_candidates} candidates per hypothesis, ready "
+                         f"in {time.time() - t0:.1f} s")
             return
         ss = seed_sequence(self.seed, f"session/{opts.model}")
         F = sample_prior(self.f0, s.prior_sd_rel, s.n_candidates, generator(ss))
@@ -292,12 +306,9 @@ class Session:
                           key_extra="postures=" + ",".join(self.postures) + f";cost={self.opts.posture_change_cost!r}")
 
 
-    @_one_blas_thread
-    def _decision(self, cs):
-        """The deficit decision (issue 31; :mod:`neckstrength.sequential.decision`) beside the joint posterior, for a
-        model with the group and tests in neutral posture; None otherwise."""
-        from neckstrength.sequential.decision import DeficitDecision
-
+    def _decision_inputs(self, cs) -> tuple[tuple, dict] | None:
+        """The deficit decision's arguments (issue 31; :mod:`neckstrength.sequential.decision`; built beside the joint
+        posterior by :meth:`_decision` or a worker process) for a model with the group; None otherwise."""
         over = {}
         if self.opts.prevalence is not None:
             over["prevalence"] = float(self.opts.prevalence)
@@ -310,20 +321,24 @@ class Session:
             raise ValueError(f"session decision settings: {exc}") from None
         if not len(ds.group_indices(self.muscles)):
             return None
-        t0 = time.time()
         post = {"pset": self.pset, "test_postures": self.test_postures} if self.postures else {}
-        dec = DeficitDecision(self.model, self.directions, self.U, self.force_scale, self.f0, ds, self.settings,
-                              derive_rng(self.seed, f"session/{self.opts.model}/decision"), n_threads=self.threads,
-                              **post)
-        self.progress(f"deficit decision: {ds.n_candidates} candidates per hypothesis, ready in "
-                      f"{time.time() - t0:.1f} s")
-        return dec
+        args = (self.model, self.directions, self.U, self.force_scale, self.f0, ds, self.settings,
+                derive_rng(self.seed, f"session/{self.opts.model}/decision"))
+        return args, {"n_threads": self.threads, **post}
+
+    @_one_blas_thread
+    def _decision(self, args: tuple, kw: dict):
+        """The deficit decision in this process."""
+        from neckstrength.sequential.decision import DeficitDecision
+
+        return DeficitDecision(*args, **kw)
 
     @_one_blas_thread
     def _push(self, step) -> None:
         """Add a measurement to the estimate (and the decision). The joint posterior and the deficit decision are
         independent (own candidates, random streams and solver caches), so they are updated side by side, the
-        decision in a second thread: a step takes about the longer of the two, not their sum (same numbers)."""
+        decision in its worker process (:attr:`decision_process`) or a second thread: a step takes about the longer
+        of the two, not their sum (same numbers)."""
         if not self.joint:
             self.state.steps.append(step)
             return
@@ -336,6 +351,23 @@ class Session:
                 except Exception:
                     self.state.undo()
                     raise
+            return
+        if getattr(dec, "push_start", None) is not None:      # in its own process (session/worker.py)
+            dec.push_start(step.direction, step.force, step.activations)
+            err = None
+            try:
+                self.state.push(step)
+            except Exception as exc:       # the joint posterior restored itself
+                err = exc
+            try:
+                dec.push_wait()
+            except Exception:              # the decision restored itself; undo the joint posterior's step
+                if err is None:
+                    self.state.undo()
+                raise
+            if err is not None:
+                dec.undo()
+                raise err
             return
         from concurrent.futures import ThreadPoolExecutor
 
