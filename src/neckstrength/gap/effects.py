@@ -837,8 +837,9 @@ class PostureDrift(Effect):
 
     Bound: 0 to 15 deg (``max_drift_deg``). The thesis does not measure how far the head moves during a test
     (Appendix A: no motion capture in the strength tests); 15 deg is the smallest range of the shipped tables
-    (lateral bend), so every drifted posture lies between computed postures. Drift against the push (negative) is
-    not a candidate: compliance yields in the direction of the load."""
+    (lateral bend), so every posture drifted from neutral lies between computed postures (from a set posture of
+    flex20 / ext20, the posture tests, a pitch drift away from neutral extrapolates along the last segment). Drift
+    against the push (negative) is not a candidate: compliance yields in the direction of the load."""
 
     name = "posture_drift"
     family = "posture"
