@@ -22,8 +22,12 @@ packed in arrays, and :func:`_fused_solve` answers every (row, direction) of a c
    to the batched solver, and so to HiGHS.
 
 Every answer is therefore a certified optimal basis, as in the batched solver: the forces agree with HiGHS to the
-certificate's tolerances. Where the optimum is degenerate the activations may be another optimal vertex than the
-batched solver's (which one either path returns depends on its cache history too).
+certificate's tolerances. Where the optimum is not unique the activations may be another optimal vertex than the
+batched solver's (which one either path returns depends on the bases its cache holds). The gap fits' exact Jacobians
+(:meth:`neckstrength.gap.fit.Simulator.forces_grad_phi`) do not follow the vertex: ``dw/df_j = (lam . R_j) alpha_j``
+with the dual ``lam``, and a column that is inside its bounds at some optimal vertex has ``lam . R_j = 0``
+(tests/gap/test_fused_fits.py). What remains is rounding: two optimal bases give the same force to about 1e-15, and
+a fit's end point moves within its stopping tolerance with it, as it does with the batched solver.
 """
 
 from __future__ import annotations
