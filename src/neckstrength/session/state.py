@@ -181,8 +181,8 @@ class Session:
     """
 
     #: numpy's BLAS on one thread inside the engine's calls, and the deficit decision updated beside the joint
-    #: posterior in a second thread (False: the engine as before 2026-11-28, the reference of benchmarks/bench_app.py;
-    #: the numbers are the same either way)
+    #: posterior (in its worker process, or a second thread) (False: the decision after the joint posterior in this
+    #: process, the reference of benchmarks/bench_app.py; the numbers are the same either way)
     one_blas_thread = True
     concurrent_decision = True
     #: with ``concurrent_decision``: the decision in a worker process of its own (session/worker.py) rather than a
