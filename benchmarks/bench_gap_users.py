@@ -43,9 +43,10 @@ import numpy as np
 NEW_EFFECTS = ("submaximal_effort", "posture_drift", "anthropometric_scaling")
 
 
-def settings_for(cfg, model, n_null: int, repeats, null_truth: str | None = None):
+def settings_for(cfg, model, n_null: int, repeats, null_truth: str | None = None, element_spread: float | None = None):
     """Context, diagnosis settings and candidate list of the benchmark (see the module docstring); ``null_truth``:
-    the noise-only replicates' truths (None: the config's ``gap.calibration.null_truth``)."""
+    the noise-only replicates' truths and ``element_spread`` their element spread (None: the config's
+    ``gap.calibration.null_truth`` / ``element_spread``)."""
     from neckstrength.config import build_directions, calibration_settings, diagnosis_settings, gap_context
     from neckstrength.gap.effects import EFFECTS
 
@@ -55,7 +56,8 @@ def settings_for(cfg, model, n_null: int, repeats, null_truth: str | None = None
     b = cfg["gap"]["benchmark"]
     cal = calibration_settings(cfg)
     cal = replace(cal, replicates=int(n_null), noise="auto", repeats=tuple(repeats), sensitivity=False,
-                  power_replicates=0, null_truth=null_truth or cal.null_truth)
+                  power_replicates=0, null_truth=null_truth or cal.null_truth,
+                  element_spread=cal.element_spread if element_spread is None else float(element_spread))
     ds = replace(ds, folds=b.get("folds", ds.folds), bootstrap=b.get("bootstrap", ds.bootstrap),
                  starts=b.get("starts", ds.starts), pairs_top=0, refine_iter=0, reach_samples=0, reach_iter=0,
                  calibration=cal)
@@ -99,6 +101,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--null-replicates", type=int, default=19, help="noise-only replicates of the decision")
     ap.add_argument("--null-truth", choices=("base", "elements"), default=None,
                     help="truths of the noise-only replicates (default: the config's gap.calibration.null_truth)")
+    ap.add_argument("--element-spread", type=float, default=None,
+                    help="with --null-truth elements: log SD of the element strengths (default: the config's)")
     ap.add_argument("--chunk", type=int, default=8, help="cases per batch (results do not depend on it)")
     ap.add_argument("--jobs", type=int, default=1, help="processes sharing out a batch's effects")
     ap.add_argument("--max-seconds", type=float, default=None, help="start no new batch after this long")
@@ -131,7 +135,8 @@ def main(argv=None) -> dict:
                        load_posture_tables(cfg["data"]["model_dir"]))
     stream = f"gap-users/{model}"
     cases = generate_truth_cases(setup, cs, derive_rng(cfg["seed"], stream), limit=a.limit)
-    ctx, ds, effects = settings_for(cfg, model, a.null_replicates, [c.repeats_row() for c in cases], a.null_truth)
+    ctx, ds, effects = settings_for(cfg, model, a.null_replicates, [c.repeats_row() for c in cases], a.null_truth,
+                                    a.element_spread)
     design = {"model": model, "seed": cfg["seed"], "stream": stream, "cases": asdict(cs), "limit": a.limit,
               "null_replicates": a.null_replicates, "effects": effects,
               "decision": "aim scatter (gap.scatter) after the calibrated choice, 2026-11-28"}

@@ -6,7 +6,10 @@ noise of SD ``sigma`` (:func:`estimate_noise`): the participant's trial-to-trial
 trials (``repeats``), else a literature prior for the test-retest variability of maximal isometric neck strength
 (``prior``; 'auto' picks the first that exists), a number, or 'heldout' = the root mean square of the log
 held-out residuals of the best single candidate (the misfit counted as noise: the size of the remaining gap
-cannot then be tested). The measured data set and its simulated ones are *screened*
+cannot then be tested). The truths have the fitted model's own structure (``null_truth`` 'base'), or a finer one
+(``null_truth`` 'elements', :class:`ElementNull`: each full-model element its own strength around its group's, so
+the false-alarm rate also holds for data with element-level variation, at a cost in power measured in
+docs/gap_diagnosis.md). The measured data set and its simulated ones are *screened*
 alike, in one batch: the base model and every single effect on its grid, fitted from the same start point with
 the calibration's ``starts`` and ``max_iter`` on the data set's fold split, each fold choosing its grid point by
 training loss, scored by the held-out gap ``1 - D_cv``. With ``cv`` 'one_step' (the config's default) the folds are
