@@ -614,3 +614,34 @@ def test_a_protocols_cache_keeps_its_columns_and_drops_a_file_of_other_settings(
     got = _read_cache(f, "abc")
     assert list(got.columns) == ["participant", "t", "log_bf"] and list(got["log_bf"]) == [0.5, 0.7]
     assert _read_cache(f, "other").empty and not f.exists()
+
+
+def test_the_study_on_one_blas_thread_gives_the_same_runs(p2m7):
+    """run_decision_study's one_blas_thread (default) runs the samplers with numpy's BLAS on one thread (seen from
+    inside the run, through its progress callback) and gives the same rows, number for number, as the default
+    BLAS threads (benchmarks/bench_decision_speed.py times both)."""
+    from threadpoolctl import threadpool_info
+
+    from neckstrength.sequential.decision_study import DecisionStudySettings, run_decision_study
+
+    model, data = p2m7
+    dirs = list(data.directions)
+    s = DecisionSettings(group=("TS-E",), n_candidates=200, n_moves=2, min_tests=1)
+    study = DecisionStudySettings(cohort=CohortSettings(n_deficit=1, n_normal=1), n_max=4)
+
+    def rng_for(what, i):
+        return np.random.default_rng([11, i, len(what)])
+
+    def blas_threads():
+        return max([x["num_threads"] for x in threadpool_info() if x["user_api"] == "blas"], default=1)
+
+    seen = {}
+    runs = {}
+    for one in (True, False):
+        seen[one] = []
+        runs[one] = run_decision_study(model, dirs, data.U, data.force_scale, model.strengths, s, JointSettings(),
+                                       study, rng_for, progress=lambda _: seen[one].append(blas_threads()),
+                                       one_blas_thread=one)
+    assert seen[True] == [1, 1] and seen[False] == [blas_threads()] * 2
+    assert len(runs[True]) == 2 * 5
+    pd.testing.assert_frame_equal(runs[True], runs[False], check_exact=True)

@@ -285,3 +285,23 @@ def test_simplex_proves_infeasible_rows_with_its_own_farkas_certificate():
     assert (status == CODE["infeasible"]).sum() > 20
     assert st_["simplex_farkas"] > 0
     assert st_["highs_calls"] < 0.5 * (status == CODE["infeasible"]).sum()
+
+
+def test_packing_only_the_start_bases_is_the_same_solve(monkeypatch):
+    """``SIMPLEX_PACK_STARTS`` hands the dual simplex the arrays of its rows' start bases only: every answer, status
+    and counter (simplex rows, pivots, learned bases) is the same as with every cached basis packed, over calls
+    that start the simplex from many cached bases."""
+    rng = np.random.default_rng(23)
+    model, U, _ = get_model("s3m24", 1)
+    calls = [draw_candidates(rng, model, "local", 300, 0.4) for _ in range(3)]
+    calls += [draw_candidates(rng, model, "prior", 300, 0.3) for _ in range(3)]
+    got = {}
+    for on in (True, False):
+        monkeypatch.setattr(batched, "SIMPLEX_PACK_STARTS", on)
+        cache = BasisCache()
+        got[on] = [max_wrench_batched(model, F, U[:4], cache=cache, return_alpha=False) for F in calls], \
+            cache.stats()
+    (a, sa), (b, sb) = got[True], got[False]
+    assert sa == sb and sa["simplex_solved"] > 500 and sa["learned_bases"] > 40
+    for (wa, _, ta), (wb, _, tb) in zip(a, b):
+        assert np.array_equal(wa, wb) and np.array_equal(ta, tb)

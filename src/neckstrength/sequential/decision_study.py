@@ -28,6 +28,7 @@ setting must equal).
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass
 from typing import Callable, Sequence
@@ -92,12 +93,29 @@ def run_decision_study(model: ReducedModel, directions: Sequence[str], U: np.nda
                        participants: Sequence[int] | None = None, n_threads: int = 1,
                        progress: Callable[[str], None] | None = None,
                        on_participant: Callable[[pd.DataFrame], None] | None = None, pset=None, abc=None,
-                       alg4_order: Callable[[int], Sequence[str]] | None = None) -> pd.DataFrame:
+                       alg4_order: Callable[[int], Sequence[str]] | None = None,
+                       one_blas_thread: bool = True) -> pd.DataFrame:
     """One row per participant, protocol and test count t (0 = before any test; the alg4 protocol: one row per
     ``alg4_tests``). Participant ``i`` is drawn from ``rng_for('truth', i)``; both hypotheses' samplers from
     ``rng_for('candidates', i)`` (the same for every protocol of a participant). ``abc``: Algorithm 4's settings
     (:class:`~neckstrength.abc.algorithm4.ABCSettings`, the alg4 protocol); ``alg4_order(i)``: participant ``i``'s
-    test order for Algorithm 4 after fewer tests than directions."""
+    test order for Algorithm 4 after fewer tests than directions.
+
+    ``one_blas_thread``: numpy's BLAS on one thread throughout
+    (:func:`~neckstrength.wrench.batched.single_threaded_blas`). The samplers' products are small (candidates x
+    muscles, the dual bounds of the Metropolis-Hastings moves) and the study runs one patient per core, so a
+    multi-threaded BLAS only synchronises and spins: a forces-only s3m24 patient took about twice the CPU time
+    with it (benchmarks/bench_decision_speed.py). The numbers are the same (each product is computed the same
+    way; the benchmark compares every test's log BF)."""
+    from neckstrength.wrench.batched import single_threaded_blas
+
+    with single_threaded_blas() if one_blas_thread else contextlib.nullcontext():
+        return _run_decision_study(model, directions, U, force_scale, f0, decision, joint, study, rng_for,
+                                   participants, n_threads, progress, on_participant, pset, abc, alg4_order)
+
+
+def _run_decision_study(model, directions, U, force_scale, f0, decision, joint, study, rng_for, participants,
+                        n_threads, progress, on_participant, pset, abc, alg4_order) -> pd.DataFrame:
     from neckstrength.wrench.batched import BasisCache
 
     directions = list(directions)

@@ -162,6 +162,12 @@ SIMPLEX_LEARN_MIN_ROWS = 16
 SIMPLEX_LEARN_SHARE = 256
 
 
+#: The compiled dual simplex gets the packed arrays (basic sets, statuses, inverses) of its rows' start bases only
+#: (False: of every cached basis, rebuilt whenever the cache changed, as before; the same answers: each row reads
+#: its own start basis only).
+SIMPLEX_PACK_STARTS = True
+
+
 #: The ``'zero'`` rule of :class:`~neckstrength.wrench.problem._DirectionLP`: ``w <= ZERO_REL max(1, sum f)``.
 ZERO_REL = 1e-12
 
@@ -591,7 +597,15 @@ class DirectionSolver:
         the newly cached bases. ``max_iter``: pivots per row (default :meth:`_max_iter`)."""
         n, m = self.n, self.m
         R = rows.size
-        SB, SS, SBinv = self._packed_bases(used)
+        if SIMPLEX_PACK_STARTS and len(used) > 1:
+            # the arrays of the rows' start bases only (a call's misses start from a few of the cached bases)
+            u, start = np.unique(start, return_inverse=True)
+            sub = [used[i] for i in u.tolist()]
+            SB = np.array([bb.basic for bb in sub], dtype=np.int64).reshape(len(sub), n)
+            SS = np.array([bb.status for bb in sub], dtype=np.int8).reshape(len(sub), m + 1)
+            SBinv = np.array([bb.Binv for bb in sub], dtype=float).reshape(len(sub), n, n)
+        else:
+            SB, SS, SBinv = self._packed_bases(used)
         want = alpha is not None
         out_w = np.zeros(R)
         out_code = np.empty(R, dtype=np.int8)
