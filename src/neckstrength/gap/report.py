@@ -69,13 +69,15 @@ def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping
     x = np.arange(len(res))
     ax[0, 0].bar(x - 0.2, res["residual"], 0.4, label="all-direction fit", color="black")
     ax[0, 0].bar(x + 0.2, res["residual_cv"], 0.4, label="held out", color="grey")
-    bad = res["reach"] != "reachable"
-    ax[0, 0].scatter(x[bad], np.zeros(bad.sum()), marker="x", color="red", s=80, zorder=3,
-                     label="outside the reach envelope")
+    bad = (res["reach"] != "reachable").to_numpy()
+    if bad.any():   # no legend entry without such a direction
+        ax[0, 0].scatter(x[bad], np.zeros(bad.sum()), marker="x", color="red", s=80, zorder=3,
+                         label="outside the reach envelope")
     ax[0, 0].set_xticks(x)
     ax[0, 0].set_xticklabels(res["direction"], rotation=80, fontsize=7)
     ax[0, 0].axhline(0, color="k", lw=0.5)
     ax[0, 0].set_ylabel("relative residual (model / measured - 1)")
+    ax[0, 0].set_xlabel("test direction")
     ax[0, 0].legend(fontsize=7)
     ax[0, 0].set_title("per direction")
     pl = diag.planes
@@ -88,6 +90,7 @@ def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping
     ax[0, 1].axvline(0, color="k", lw=0.5)
     ax[0, 1].legend(fontsize=7)
     ax[0, 1].set_title("by plane of the 3 x 3 grid")
+    ax[0, 1].set_xlabel("relative residual (model / measured - 1)")
     co = diag.components
     y = np.arange(len(co))
     ax[1, 0].barh(y - 0.2, co["rms_residual"], 0.4, color="black", label="RMS, all-direction fit")
@@ -98,6 +101,7 @@ def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping
     ax[1, 0].axvline(0, color="k", lw=0.5)
     ax[1, 0].legend(fontsize=7)
     ax[1, 0].set_title("by signed wrench component (weight: unit moment / force direction)")
+    ax[1, 0].set_xlabel("relative residual, weighted (model / measured - 1)")
     mu = diag.muscles.dropna(subset=["mean_residual"])
     y = np.arange(len(mu))
     ax[1, 1].barh(y - 0.2, mu["mean_residual"], 0.4, color="black", label="mean, all-direction fit")
@@ -107,6 +111,7 @@ def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping
     ax[1, 1].axvline(0, color="k", lw=0.5)
     ax[1, 1].legend(fontsize=7)
     ax[1, 1].set_title("by active muscle group (weight: activation in the fit)")
+    ax[1, 1].set_xlabel("mean relative residual, weighted (model / measured - 1)")
     fig.suptitle(f"Where the model misses: {diag.name} ({diag.summary['model']})")
     fig.tight_layout()
     _save(fig, out["where"])
@@ -142,6 +147,8 @@ def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping
         axa.set_xticks(x)
         axa.set_xticklabels(res["direction"], rotation=80, fontsize=7)
         axa.set_ylim(0, 1.05)
+        axa.set_xlabel("test direction")
+        axa.set_ylabel("normalised activation (0-1)")
         axa.legend(fontsize=8)
         axa.set_title(f"Withheld activation data vs model prediction: {diag.name}")
         fig.tight_layout()
