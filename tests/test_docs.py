@@ -157,3 +157,12 @@ def test_dependency_closure_follows_requirements():
     main = _closure(PYPROJECT["project"]["dependencies"])
     assert {"snakemake", "numpy", "jinja2"} <= main
     assert "pytest" not in main and "hypothesis" not in main
+
+
+def test_every_benchmarks_row_has_its_own_anchor():
+    # a figure lives once: two rows with one id would make every link to it ambiguous
+    import collections
+
+    ids = re.findall(r'<a id="([^"]+)"></a>', (ROOT / "docs" / "benchmarks.md").read_text())
+    dup = [k for k, n in collections.Counter(ids).items() if n > 1]
+    assert ids and not dup, f"docs/benchmarks.md: anchors used by more than one row: {dup}"
