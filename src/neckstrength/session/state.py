@@ -352,38 +352,30 @@ class Session:
                     self.state.undo()
                     raise
             return
+        ex = None
         if getattr(dec, "push_start", None) is not None:      # in its own process (session/worker.py)
             dec.push_start(step.direction, step.force, step.activations)
-            err = None
-            try:
-                self.state.push(step)
-            except Exception as exc:       # the joint posterior restored itself
-                err = exc
-            try:
-                dec.push_wait()
-            except Exception:              # the decision restored itself; undo the joint posterior's step
-                if err is None:
-                    self.state.undo()
-                raise
-            if err is not None:
-                dec.undo()
-                raise err
-            return
-        from concurrent.futures import ThreadPoolExecutor
+            wait = dec.push_wait
+        else:                                                 # in a second thread
+            from concurrent.futures import ThreadPoolExecutor
 
-        with ThreadPoolExecutor(1) as ex:
-            fut = ex.submit(dec.push, step.direction, step.force, step.activations)
-            err = None
+            ex = ThreadPoolExecutor(1)
+            wait = ex.submit(dec.push, step.direction, step.force, step.activations).result
+        err = None
+        try:
             try:
                 self.state.push(step)
             except Exception as exc:       # the joint posterior restored itself
                 err = exc
             try:
-                fut.result()
+                wait()
             except Exception:              # the decision restored itself; undo the joint posterior's step
                 if err is None:
                     self.state.undo()
                 raise
+        finally:
+            if ex is not None:
+                ex.shutdown()
         if err is not None:
             dec.undo()
             raise err
