@@ -591,10 +591,11 @@ def test_patients_per_kind_measures_the_first_k_of_each_kind_under_a_protocol():
 
     st = DecisionStudySettings(cohort=CohortSettings(n_deficit=4, n_normal=3), protocols=("forces", "alg4"),
                                patients_per_kind=(("alg4", 2), ("forces+postures", 9)))
-    assert st.participants("forces") == list(range(7))
-    assert st.participants("alg4") == [0, 1, 4, 5]                 # deficit patients 0-3, normal 4-6
+    # deficit patients 0-3, normal 4-6, run alternating so a study stopped part-way has both kinds
+    assert st.participants("forces") == st.participants() == [0, 4, 1, 5, 2, 6, 3]
+    assert st.participants("alg4") == [0, 4, 1, 5]
     assert DecisionStudySettings(cohort=st.cohort, patients_per_kind=(("forces+postures", 9),)).participants(
-        "forces+postures") == list(range(7))                       # k above the cohort: all
+        "forces+postures") == [0, 4, 1, 5, 2, 6, 3]                # k above the cohort: all
     with pytest.raises(ValueError, match="patients_per_kind"):
         DecisionStudySettings(patients_per_kind=(("alg5", 2),))
     with pytest.raises(ValueError, match="patients_per_kind"):
@@ -603,6 +604,51 @@ def test_patients_per_kind_measures_the_first_k_of_each_kind_under_a_protocol():
     study, _ = decision_study_settings(cfg, "s3m24")
     assert dict(study.patients_per_kind)["alg4"] >= 1
     assert len(study.participants("forces")) == study.cohort.n_deficit + study.cohort.n_normal
+
+
+def test_a_study_stopped_before_its_first_normal_patient_gives_tables_and_a_figure_that_say_so(tmp_path):
+    """roc_table and the figure on runs of one kind: NaN where both kinds are needed and a note naming the missing
+    kind (a warning too), the rule's sensitivity still read; the other tables as before."""
+    from neckstrength.sequential.decision_plots import fig_decision_study
+
+    runs = _fake_runs()
+    only = runs[runs["kind"] == "deficit"]
+    with pytest.warns(UserWarning, match="forces: no normal participants among its 20 runs"):
+        roc = roc_table(only, (1, 5), 0.05, 0.95)
+    assert list(roc["n_normal"]) == [0, 0] and roc["auc"].isna().all() and roc["auc_se"].isna().all()
+    assert roc["sensitivity_at_fa0.05"].isna().all() and roc["rule_false_alarm_p0.95"].isna().all()
+    assert roc["rule_sensitivity_p0.95"].between(0, 1).all() and roc["note"].str.contains("no normal").all()
+    assert "note" not in roc_table(runs, (1, 5), 0.05, 0.95).columns      # both kinds: the table as before
+    per, seq = sequential_table(only, 0.95)
+    assert list(seq["kind"]) == ["deficit"]
+    rel = reliability_table(only, (1, 5))
+    fig_decision_study(only, rel, (1, 5), 0.95, tmp_path / "fig.png", "one kind")
+    assert (tmp_path / "fig.png").stat().st_size > 10_000
+
+
+def test_a_study_in_alternating_order_gives_each_patient_the_rows_it_gets_alone(p2m7):
+    """Every patient draws from its own index's streams: the study's run order (deficit and normal alternating)
+    leaves each patient's rows as when that patient runs alone (how the pipeline runs them)."""
+    from neckstrength.sequential.decision_study import DecisionStudySettings, run_decision_study
+
+    model, data = p2m7
+    dirs = list(data.directions)
+    s = DecisionSettings(group=("TS-E",), n_candidates=100, n_moves=1, min_tests=1)
+    study = DecisionStudySettings(cohort=CohortSettings(n_deficit=2, n_normal=1), n_max=2)
+
+    def rng_for(what, i):
+        return np.random.default_rng([11, i, len(what)])
+
+    def run(participants=None):
+        return run_decision_study(model, dirs, data.U, data.force_scale, model.strengths, s, JointSettings(), study,
+                                  rng_for, participants=participants)
+
+    both = run()
+    assert list(dict.fromkeys(both["participant"])) == [0, 2, 1]
+    assert list(dict.fromkeys(both["kind"]))[:2] == ["deficit", "normal"]
+    for i in (0, 1, 2):
+        alone = run([i])
+        pd.testing.assert_frame_equal(both[both["participant"] == i].reset_index(drop=True), alone, rtol=1e-9)
 
 
 def test_a_protocols_cache_keeps_its_columns_and_drops_a_file_of_other_settings(tmp_path):

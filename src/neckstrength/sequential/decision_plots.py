@@ -20,7 +20,7 @@ def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoint
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from neckstrength.sequential.decision_study import _with_p, roc_curve
+    from neckstrength.sequential.decision_study import _with_p, missing_kind, roc_curve
 
     protocols = list(dict.fromkeys(runs["protocol"]))
     styles = ["-", "--", ":", "-."]
@@ -34,6 +34,10 @@ def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoint
             if c["sensitivity"].isna().all() or len(c) <= 2:
                 continue
             a.step(c["false_alarm"], c["sensitivity"], where="post", color=f"C{ci}", label=f"{t} tests")
+        note = missing_kind(runs, protocol)
+        if note:                                  # one kind only (a study stopped early): say so, no curve
+            a.text(0.5, 0.5, note.replace(", so ", ",\nso ").replace(" (", "\n("), ha="center", va="center",
+                   fontsize=8, transform=a.transAxes, wrap=True)
         a.plot([0, 1], [0, 1], color="grey", lw=0.8)
         a.axvline(0.05, color="grey", lw=0.8, ls=":")
         a.set_xlabel("false-alarm rate (normal called deficit)")
@@ -42,7 +46,8 @@ def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoint
         a.set_title(f"ROC: {protocol} ({score})", fontsize=9)
         a.set_xlim(0, 1)
         a.set_ylim(0, 1.02)
-        a.legend(fontsize=7, loc="lower right")
+        if not note:
+            a.legend(fontsize=7, loc="lower right")
     runs = _with_p(runs)
     protocols = list(dict.fromkeys(runs["protocol"]))
     ax = [None, fig.add_subplot(gs[1, :n_top]), fig.add_subplot(gs[1, n_top:])]
@@ -63,6 +68,8 @@ def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoint
     for pi, protocol in enumerate(protocols):
         for kind, color in (("deficit", "C3"), ("normal", "C0")):
             g = runs[(runs["protocol"] == protocol) & (runs["kind"] == kind)]
+            if g.empty:
+                continue
             q = g.groupby("t")["p_deficit"].quantile([0.25, 0.5, 0.75]).unstack()
             a.plot(q.index, q[0.5], color=color, ls=styles[pi % len(styles)], label=f"{kind}, {protocol} (median)")
             if pi == 0:

@@ -74,17 +74,27 @@ class DecisionStudySettings:
         if bad:
             raise ValueError(f"clinician.decision_study.patients_per_kind: {bad} must be protocols ({PROTOCOLS}) "
                              "with at least 1 patient")
-
-    def participants(self, protocol: str) -> list[int]:
-        """The cohort indices measured under ``protocol``: every patient, or the first ``k`` of each kind
-        (deficit patients come first in the cohort, ``0 .. n_deficit - 1``)."""
-        n_d, n_n = self.cohort.n_deficit, self.cohort.n_normal
-        k = dict(self.patients_per_kind).get(protocol)
-        if k is None:
-            return list(range(n_d + n_n))
-        return list(range(min(k, n_d))) + list(range(n_d, n_d + min(k, n_n)))
         if any("emg" in p for p in self.protocols) and not self.emg_groups:
             raise ValueError("protocols with EMG need emg_groups (the recorded muscle groups)")
+
+    def participants(self, protocol: str | None = None) -> list[int]:
+        """The cohort indices measured under ``protocol`` (None: every patient), in the order they are run:
+        every patient, or the first ``k`` of each kind (deficit patients are ``0 .. n_deficit - 1`` in the cohort,
+        normal ones follow), the two kinds alternating (:func:`interleaved`), so a run stopped part-way has both."""
+        n_d, n_n = self.cohort.n_deficit, self.cohort.n_normal
+        k = None if protocol is None else dict(self.patients_per_kind).get(protocol)
+        if k is None:
+            return interleaved(range(n_d), range(n_d, n_d + n_n))
+        return interleaved(range(min(k, n_d)), range(n_d, n_d + min(k, n_n)))
+
+
+def interleaved(a: Sequence[int], b: Sequence[int]) -> list[int]:
+    """``a[0], b[0], a[1], b[1], ...``, the longer one's rest at the end: the deficit and normal patients in the
+    order a study runs them. Each patient draws from its own index's streams, so the order changes no result."""
+    a, b = list(a), list(b)
+    out = [x for pair in zip(a, b) for x in pair]
+    n = min(len(a), len(b))
+    return out + a[n:] + b[n:]
 
 
 def run_decision_study(model: ReducedModel, directions: Sequence[str], U: np.ndarray, force_scale: np.ndarray,
@@ -122,7 +132,7 @@ def _run_decision_study(model, directions, U, force_scale, f0, decision, joint, 
     names = list(model.muscle_names)
     c = study.cohort
     kinds = ["deficit"] * c.n_deficit + ["normal"] * c.n_normal
-    todo = range(len(kinds)) if participants is None else list(participants)
+    todo = study.participants() if participants is None else list(participants)
     n_max = min(study.n_max, len(directions))
     base = np.array([n[:-2] if n.endswith(("-R", "-L")) else n for n in names])
     emg_mask = np.isin(base, list(study.emg_groups))
@@ -277,6 +287,8 @@ def roc_curve(runs: pd.DataFrame, protocol: str, t: int) -> pd.DataFrame:
     sc = _score(g)
     pos = sc[g["kind"] == "deficit"].to_numpy(float)
     neg = sc[g["kind"] == "normal"].to_numpy(float)
+    if not len(pos) or not len(neg):              # no curve without both kinds (see missing_kind)
+        return pd.DataFrame({"protocol": [], "t": [], "threshold_score": [], "false_alarm": [], "sensitivity": []})
     thr = np.r_[np.inf, np.sort(np.unique(np.r_[pos, neg]))[::-1], -np.inf]
     return pd.DataFrame({"protocol": protocol, "t": t, "threshold_score": thr,
                          "false_alarm": [(neg >= x).mean() for x in thr],
@@ -290,12 +302,30 @@ def rule_grid(runs: pd.DataFrame, p_decides: Sequence[float] = (0.9, 0.95, 0.99)
     return pd.concat([sequential_table(runs, p, m)[1] for p in p_decides for m in min_tests], ignore_index=True)
 
 
+def missing_kind(runs: pd.DataFrame, protocol: str) -> str:
+    """'' when ``protocol``'s runs have deficit and normal participants, else a sentence saying which kind is
+    missing (a study stopped before its first normal participant, or a cache of one kind)."""
+    g = runs[runs["protocol"] == protocol]
+    gone = [k for k in ("deficit", "normal") if k not in set(g["kind"])]
+    if not gone:
+        return ""
+    return (f"{protocol}: no {' and no '.join(gone)} participants among its {g['participant'].nunique()} runs, so "
+            "no ROC area or false-alarm threshold (a study stopped early? rerunning it resumes)")
+
+
 def roc_table(runs: pd.DataFrame, checkpoints: Sequence[int], false_alarm: float = 0.05,
               p_decide: float = 0.95) -> pd.DataFrame:
     """Per protocol and t: ROC area (Hanley-McNeil se), the sensitivity at a false-alarm rate <= ``false_alarm``
-    (the threshold chosen on these normals: optimistic by that choice), and the fixed rule P(deficit) >= p_decide."""
+    (the threshold chosen on these normals: optimistic by that choice), and the fixed rule P(deficit) >= p_decide.
+    A protocol with participants of one kind only gets NaN for what needs both (ROC area, threshold) and the
+    reason in ``note`` (:func:`missing_kind`), also given as a warning."""
+    import warnings
+
     out = []
     for protocol, gp in runs.groupby("protocol", sort=False):
+        note = missing_kind(runs, protocol)
+        if note:
+            warnings.warn(note, stacklevel=2)
         for t in checkpoints:
             g = gp[gp["t"] == t]
             if g.empty:
@@ -303,10 +333,13 @@ def roc_table(runs: pd.DataFrame, checkpoints: Sequence[int], false_alarm: float
             sc = _score(g)
             pos = sc[g["kind"] == "deficit"].to_numpy(float)
             neg = sc[g["kind"] == "normal"].to_numpy(float)
-            auc = _auc(pos, neg)
-            curve = roc_curve(runs, protocol, t)
-            ok = curve[curve["false_alarm"] <= false_alarm]
-            best = ok.iloc[int(np.argmax(ok["sensitivity"].to_numpy()))]
+            if len(pos) and len(neg):
+                auc = _auc(pos, neg)
+                curve = roc_curve(runs, protocol, t)
+                ok = curve[curve["false_alarm"] <= false_alarm]
+                best = ok.iloc[int(np.argmax(ok["sensitivity"].to_numpy()))]
+            else:
+                auc, best = np.nan, {"sensitivity": np.nan, "threshold_score": np.nan}
             pp = g.loc[g["kind"] == "deficit", "p_deficit"].to_numpy(float)
             pn = g.loc[g["kind"] == "normal", "p_deficit"].to_numpy(float)
             pp, pn = pp[np.isfinite(pp)], pn[np.isfinite(pn)]          # alg4: a score, no probability
@@ -314,14 +347,15 @@ def roc_table(runs: pd.DataFrame, checkpoints: Sequence[int], false_alarm: float
             s_lo, s_hi = _wilson(k_s, len(pp))
             f_lo, f_hi = _wilson(k_f, len(pn))
             out.append({"protocol": protocol, "t": t, "n_deficit": len(pos), "n_normal": len(neg), "auc": auc,
-                        "auc_se": _auc_se(auc, len(pos), len(neg)),
+                        "auc_se": _auc_se(auc, len(pos), len(neg)) if np.isfinite(auc) else np.nan,
                         f"sensitivity_at_fa{false_alarm:g}": float(best["sensitivity"]),
                         "threshold_score": float(best["threshold_score"]),
                         f"rule_sensitivity_p{p_decide:g}": k_s / len(pp) if len(pp) else np.nan,
                         "rule_sensitivity_ci95_low": s_lo, "rule_sensitivity_ci95_high": s_hi,
                         f"rule_false_alarm_p{p_decide:g}": k_f / len(pn) if len(pn) else np.nan,
-                        "rule_false_alarm_ci95_low": f_lo, "rule_false_alarm_ci95_high": f_hi})
-    return pd.DataFrame(out)
+                        "rule_false_alarm_ci95_low": f_lo, "rule_false_alarm_ci95_high": f_hi, "note": note})
+    out = pd.DataFrame(out)
+    return out.drop(columns="note") if "note" in out and not out["note"].astype(bool).any() else out
 
 
 def sequential_table(runs: pd.DataFrame, p_decide: float = 0.95,
