@@ -44,6 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
+from neckstrength.testing import assert_close
+
 DEFAULT_PARTICIPANTS = "norm,weak,sim-deficit-1,sim-deficit-2,sim-normal-1,sim-normal-2"
 
 
@@ -73,23 +75,6 @@ def _cpu_of(pid: int) -> float:
         return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
     except (OSError, ValueError, IndexError):
         return float("nan")
-
-
-def _assert_close(a, b, path: str) -> None:
-    """``a == b`` with floats equal to 1e-9 relative / 1e-12 absolute (the solver's rounding: the reference's samplers
-    solve other LPs, so their basis caches, and the last digits of some wrenches, differ)."""
-    if isinstance(a, dict):
-        assert isinstance(b, dict) and set(a) == set(b), path
-        for k in a:
-            _assert_close(a[k], b[k], f"{path}/{k}")
-    elif isinstance(a, (list, tuple)):
-        assert isinstance(b, (list, tuple)) and len(a) == len(b), path
-        for k, (x, y) in enumerate(zip(a, b)):
-            _assert_close(x, y, f"{path}[{k}]")
-    elif isinstance(a, float) and isinstance(b, float):
-        assert (np.isnan(a) and np.isnan(b)) or abs(a - b) <= 1e-12 + 1e-9 * abs(b), (path, a, b)
-    else:
-        assert a == b, (path, a, b)
 
 
 def _stats(x: np.ndarray) -> str:
@@ -186,7 +171,7 @@ def main(argv=None) -> int:
                     rprop = ref.propose()
                     t_r = time.perf_counter() - t0
                     c_r = time.process_time() - c0
-                    _assert_close(rprop, prop, f"{who} step {k + 1}: proposal")
+                    assert_close(rprop, prop, f"{who} step {k + 1}: proposal")
                 t0 = time.perf_counter()
                 r = client.post(f"/api/sessions/p{pi}/tell", json={"test": test, "force_N": f})
                 r.raise_for_status()
@@ -198,8 +183,8 @@ def main(argv=None) -> int:
                 assert snap["estimate"] == eng.snapshot()["estimate"]
                 if ref is not None:
                     rs = ref.snapshot()
-                    _assert_close(rs["estimate"], snap["estimate"], f"{who} step {k + 1}: estimate")
-                    _assert_close(rs["decision"], snap["decision"], f"{who} step {k + 1}: decision")
+                    assert_close(rs["estimate"], snap["estimate"], f"{who} step {k + 1}: estimate")
+                    assert_close(rs["decision"], snap["decision"], f"{who} step {k + 1}: decision")
                 load = os.getloadavg()[0]
                 loads.append(load)
                 times["app"].append(t_a)

@@ -11,6 +11,7 @@ import pytest
 
 from neckstrength.session import Session, SessionOptions, run_interactive
 from neckstrength.session.worker import DecisionProcess
+from neckstrength.testing import assert_close
 
 ROOT = Path(__file__).resolve().parents[2]
 CFG = str(ROOT / "config" / "config.ci.yaml")      # clinician.session.s3m24: joint_eig, N 300
@@ -97,22 +98,6 @@ def test_session_threads_change_speed_only(tmp_path):
     assert r.render().split("===", 2)[2] == s.render().split("===", 2)[2]
 
 
-def _assert_close(a, b, path="snapshot"):
-    """``a == b`` with floats compared to 1e-9 (relative) / 1e-12 (absolute): the solver's rounding."""
-    if isinstance(a, dict):
-        assert isinstance(b, dict) and set(a) == set(b), path
-        for k in a:
-            _assert_close(a[k], b[k], f"{path}/{k}")
-    elif isinstance(a, (list, tuple)):
-        assert isinstance(b, (list, tuple)) and len(a) == len(b), path
-        for k, (x, y) in enumerate(zip(a, b)):
-            _assert_close(x, y, f"{path}[{k}]")
-    elif isinstance(a, float) and isinstance(b, float):
-        assert a == pytest.approx(b, rel=1e-9, abs=1e-12, nan_ok=True), path
-    else:
-        assert a == b, path
-
-
 def test_speed_switches_change_no_number(tmp_path):
     """The engine's speed switches (numpy's BLAS on one thread; the deficit decision updated beside the joint
     posterior in a worker process, or in a thread) change no number: with both off (the reference of
@@ -147,7 +132,7 @@ def test_speed_switches_change_no_number(tmp_path):
         a.pop("screen"), b.pop("screen"), c.pop("screen"), d.pop("screen")
         assert a == b == d and a["decision"]["log_bf"] == b["decision"]["log_bf"] == d["decision"]["log_bf"]
         # the deferral solves the same LPs in other batches: equal to the solver's rounding
-        _assert_close(b, c)
+        assert_close(b, c, "snapshot")
     before = s.snapshot()
 
     assert isinstance(s.decision, DecisionProcess) and not isinstance(r.decision, DecisionProcess)
@@ -168,5 +153,5 @@ def test_speed_switches_change_no_number(tmp_path):
     r.tell("110")                     # LPs left bases in its caches: equal to the solver's rounding)
     a, b = s.snapshot(), r.snapshot()
     a.pop("screen"), b.pop("screen")
-    _assert_close(a, b)
+    assert_close(a, b, "snapshot")
     assert a["decision"]["trend"][:-1] == b["decision"]["trend"][:-1]
