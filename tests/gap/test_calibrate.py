@@ -474,15 +474,29 @@ def test_direction_tolerance_fits_of_a_data_set_do_not_depend_on_the_batch(model
         else:
             eng.evaluate((), eng.prior)
             res = eng.evaluate(key, eng.results[()]["phi"])
-        return {data[i].name: (res["phi"][eng.pds == a], res["forces"][eng.pds == a]) for a, i in enumerate(order)}
+        return {data[i].name: (res["phi"][eng.pds == a], res["forces"][eng.pds == a], res["loss"][eng.pds == a])
+                for a, i in enumerate(order)}
 
     alone = fit([2])["d2"]
     batch = fit(list(range(6)))
     rev = fit(list(range(6))[::-1])
+    # The tolerance is the resolution of the fits' stopping rule, not the solver's rounding. Other data sets in the
+    # batch change the last digits of some forces (another optimal LP vertex from the shared basis cache, the window's
+    # branch and bound), and the fit turns those into an iteration more or fewer before it stops: Levenberg-Marquardt
+    # stops after 3 iterations in a row that lower the loss L by less than fit.tol relative, so two stopping points of
+    # the same problem can differ in loss by about dL = 3 tol L. Near the minimum dL ~ d'(J'J + ridge I)d, so
+    # relative forces differ by up to about sqrt(dL) and log strengths by up to sqrt(dL / ridge). Seen here (2026-11-28,
+    # fused and per-direction solver, both kinds of fold fit): forces 5e-7-8e-7 relative, log strengths 9e-7-1.9e-6,
+    # both below a 1e-6 tolerance by a thin margin. The dependence this test is for (every data set's forces the
+    # maximum over the union of the batch's candidate sets, as before each data set had its own) moves the forces by
+    # 2-11% and the log strengths by 0.6-2.5, well above these bounds (about 2e-3 and 0.07 here).
+    dL = 3 * s.fit.tol * max(float(np.max(r[2])) for r in (alone, *batch.values(), *rev.values()))
+    f_tol, phi_tol = np.sqrt(dL), np.sqrt(dL / s.fit.ridge)
+    assert f_tol < 0.005 and phi_tol < 0.2                   # a bound that could not miss a real dependence
     for other in (batch["d2"], rev["d2"]):
-        assert np.allclose(alone[1], other[1], rtol=1e-6, atol=1e-9)
-        assert np.allclose(alone[0], other[0], rtol=0.0, atol=1e-5)
-    assert all(np.allclose(batch[n][1], rev[n][1], rtol=1e-6, atol=1e-9) for n in batch)
+        assert np.allclose(alone[1], other[1], rtol=f_tol, atol=0.0)
+        assert np.allclose(alone[0], other[0], rtol=0.0, atol=phi_tol)
+    assert all(np.allclose(batch[n][1], rev[n][1], rtol=f_tol, atol=0.0) for n in batch)
 
 
 def test_calibration_settings_noise_from_the_config(tmp_path):
