@@ -12,7 +12,7 @@ import pytest
 from neckstrength.abc.plots import abc_traces
 from neckstrength.model.geometry import PLANE_GRID
 from neckstrength.pipeline.postures import fig_postures
-from neckstrength.plotting import radar_grid_series
+from neckstrength.plotting import PLANE_TITLES, radar_grid_series
 from neckstrength.sequential.plots import fig_posteriors
 
 matplotlib.use("Agg")
@@ -101,6 +101,35 @@ def test_radar_of_a_planar_model_has_no_empty_panel(tmp_path, figures, direction
     assert sum(ax.get_visible() for ax in figures[-1].axes) == sum(len(r) for r in PLANE_GRID) == 9
     with pytest.raises(ValueError, match="no series has a value"):
         radar_grid_series(directions, [("none", pd.Series(dtype=float), {})], tmp_path / "n.png")
+
+
+def _label_clashes(fig) -> list[str]:
+    """Pairs of direction labels (theta tick labels) of one radar panel whose boxes overlap once drawn."""
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    bad = []
+    for ax in fig.axes:
+        if not ax.get_visible():
+            continue
+        labs = [t.label1 for t in ax.xaxis.get_major_ticks() if t.label1.get_visible() and t.label1.get_text()]
+        boxes = [t.get_window_extent(r) for t in labs]
+        bad += [f"{ax.get_title()}: {labs[i].get_text()!r} / {labs[j].get_text()!r}" for i in range(len(labs))
+                for j in range(i + 1, len(labs)) if boxes[i].overlaps(boxes[j])]
+    return bad
+
+
+def test_radar_direction_labels_do_not_overlap(tmp_path, figures, directions):
+    # directions that share (or nearly share) their angle in a plane, e.g. aboveEarR and earR in the right sagittal
+    # plane, backUnderR and backLowR in the inferior transverse one, had their labels printed over each other
+    vals = pd.Series(np.linspace(80, 300, len(directions)), index=directions["name"])
+    radar_grid_series(directions, [("measured", vals, {"color": "blue"})], tmp_path / "r.png", "all", rlabel="N")
+    fig = figures[-1]
+    assert not _label_clashes(fig), _label_clashes(fig)
+    for ax in fig.axes:                      # every direction of a panel is still named there
+        text = " ".join(t.label1.get_text() for t in ax.xaxis.get_major_ticks())
+        members = directions[directions["planes"].astype(str).str.split(";").apply(
+            lambda ps, a=ax: any(PLANE_TITLES[p] == a.get_title() for p in ps))]["name"]
+        assert all(n in text.replace("\n", " ").replace(" / ", " ").split() for n in members), ax.get_title()
 
 
 def test_posteriors_legend_below_the_panels(tmp_path, figures):

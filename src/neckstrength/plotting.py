@@ -45,7 +45,8 @@ def radar_grid_series(directions: pd.DataFrame, series: Sequence[tuple[str, pd.S
     their polar angle within each plane (sagittal: x right / y up; transverse: x right / z up;
     coronal: z right / y up). A plane in which no series has values at 3 or more angles (a planar model's tests
     lie in the mid-sagittal plane; elsewhere they fall on one line) gets no panel, and the title says how many
-    planes were left out; the legend sits below the panels, never over one.
+    planes were left out; the legend sits below the panels, never over one. Directions at one angle of a plane share
+    one label, and labels that would overlap once drawn are joined, so that every direction is named legibly.
     """
     recs = directions.to_dict("records")
     panels = []
@@ -76,12 +77,15 @@ def radar_grid_series(directions: pd.DataFrame, series: Sequence[tuple[str, pd.S
         for label, s, kw in series:
             vals = np.array([s.get(n, np.nan) for n in names], float)
             ax.plot(closed, np.r_[vals, vals[:1]], label=label, **kw)
-        ax.set_xticks(th)
-        ax.set_xticklabels(names, fontsize=7)
+        uth = np.unique(np.round(th, 3))          # one tick per angle: directions sharing it share a label
+        ax.set_xticks(uth)
+        ax.set_xticklabels([_joined([n for n, t in zip(names, np.round(th, 3)) if t == u], u) for u in uth],
+                           fontsize=7)
         ax.set_xlim(0, 2 * np.pi)
         ax.set_ylim(0, rmax)
         ax.set_rlabel_position(250)
         ax.tick_params(axis="y", labelsize=6)
+        _align_labels(ax)
     for ax in axes.ravel()[len(panels):]:
         ax.set_visible(False)
     handles, labels = axes[0, 0].get_legend_handles_labels()
@@ -94,8 +98,69 @@ def radar_grid_series(directions: pd.DataFrame, series: Sequence[tuple[str, pd.S
     if text:
         fig.suptitle(textwrap.fill(text, int(width * 11)), fontsize=11 if ncol == 3 else 10)
     legend_h = 0.35 * int(np.ceil(len(labels) / (3 if ncol < 3 else 6))) + 0.3 if handles else 0.2
-    fig.tight_layout(rect=(0, legend_h / (4 * nrow + 0.8), 1, 1))
+    rect = (0, legend_h / (4 * nrow + 0.8), 1, 1)
+    fig.tight_layout(rect=rect)
+    for _ in range(3):                             # labels of nearby angles that overlap once drawn: joined
+        if not sum(_join_overlapping_labels(ax) for ax in axes.ravel()[:len(panels)]):
+            break
+        fig.tight_layout(rect=rect)
     _save(fig, out)
+
+
+def _joined(names: Sequence[str], theta: float) -> str:
+    """One label for the directions at (nearly) one angle: side by side near the top and bottom of a panel, stacked
+    at its sides (where a wide label would run into the next panel)."""
+    return (" / " if abs(np.sin(theta)) > 0.7 else "\n").join(names)
+
+
+def _join_overlapping_labels(ax) -> int:
+    """Join the direction labels of ``ax`` whose boxes overlap once drawn into one label at the middle one's tick (the
+    others' ticks and grid lines stay, unlabelled). Returns how many labels were joined away."""
+    r = ax.figure.canvas.get_renderer()
+    ticks = [t for t in ax.xaxis.get_major_ticks() if t.label1.get_visible()]
+    locs = np.array([t.get_loc() for t in ticks], float)
+    texts = [t.label1.get_text() for t in ticks]
+    boxes = [t.label1.get_window_extent(r).expanded(1.05, 1.4) if texts[i] else None for i, t in enumerate(ticks)]
+    group = list(range(len(ticks)))               # union-find over overlapping boxes
+
+    def root(i):
+        while group[i] != i:
+            i = group[i]
+        return i
+
+    for i in range(len(ticks)):
+        for j in range(i + 1, len(ticks)):
+            if boxes[i] is not None and boxes[j] is not None and boxes[i].overlaps(boxes[j]):
+                group[root(j)] = root(i)
+    joined = 0
+    new = list(texts)
+    for g in {root(i) for i in range(len(ticks))}:
+        members = [i for i in range(len(ticks)) if root(i) == g and texts[i]]
+        if len(members) < 2:
+            continue
+        members.sort(key=lambda i: locs[i])
+        if locs[members[-1]] - locs[members[0]] > np.pi:    # a group across 0 / 2 pi: in order from its start
+            cut = int(np.argmax(np.diff(locs[members]))) + 1
+            members = members[cut:] + members[:cut]
+        keep = members[len(members) // 2]
+        for i in members:
+            new[i] = ""
+        new[keep] = _joined([n for i in members for n in texts[i].replace(" / ", "\n").split("\n")], locs[keep])
+        joined += len(members) - 1
+    if joined:
+        ax.set_xticks(locs)
+        ax.set_xticklabels(new, fontsize=7)
+        _align_labels(ax)
+    return joined
+
+
+def _align_labels(ax) -> None:
+    """Each direction label anchored on the side facing its tick (left-aligned on the right of the panel, and so on),
+    so that a long label does not reach back over the outer circle."""
+    for t in ax.xaxis.get_major_ticks():
+        c, s = np.cos(t.get_loc()), np.sin(t.get_loc())
+        t.label1.set_horizontalalignment("left" if c > 0.2 else "right" if c < -0.2 else "center")
+        t.label1.set_verticalalignment("bottom" if s > 0.2 else "top" if s < -0.2 else "center")
 
 
 def _save(fig, out, dpi: int = 110):
