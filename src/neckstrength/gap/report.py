@@ -52,6 +52,96 @@ def activation_check(diag: DatasetDiagnosis, measured: np.ndarray | None) -> pd.
     return pd.DataFrame(rows)
 
 
+def _code(names) -> str:
+    return ", ".join(f"`{n}`" for n in names)
+
+
+def ranking_note(s: Mapping, effects: pd.DataFrame) -> str:
+    """Which statistic names the effect and how the bootstrap ranking relates to it: agrees, prefers a pair that
+    includes it, or disagrees (then said in bold), and which single effect the score ranking puts first (summary
+    ``s``, ranking ``effects``). A report never shows a low P(best) for the named effect without saying why."""
+    chosen = s["chosen"]
+    named = s.get("named", chosen)
+    ef = effects.set_index("candidate")
+    pb = ef["p_best"].astype(float)
+    calibrated = bool(s.get("calibrated"))
+    out = []
+    if named != chosen:     # aiming scatter: named by the remainder's shape test, not a ranked candidate
+        out.append(f"`{named}` is named by the remainder's shape test after the calibrated test's choice `{chosen}`; "
+                   "aiming scatter is not a ranked candidate, so the bootstrap says nothing about it.")
+    if chosen == "none":
+        out.append("No effect is named " + ("by the calibrated test (maxT over single effects)." if calibrated else
+                                            "by the score ranking."))
+    elif calibrated:
+        out.append(f"`{chosen}` is named by the calibrated test (maxT over single effects: the held-out improvement "
+                   "on the calibration's screen, standardised by what noise-only replicates give each effect).")
+    else:
+        out.append(f"`{chosen}` is named by the score ranking alone (uncalibrated: no false-alarm control).")
+    if not pb.notna().any():
+        return " ".join(out + ["No bootstrap was run."])
+    fav = str(pb.idxmax())
+    p_fav, p_ch = float(pb[fav]), float(pb.get(chosen, np.nan))
+    boot = (f"The bootstrap P(best) (share of resampled direction sets in which a candidate, pairs included, has the "
+            f"lowest score; no false-alarm control) ")
+    pair_note = "pairs are not tested, so that addition is not a finding" if calibrated else "pairs cost parameters"
+    if fav == chosen:
+        out.append(boot + f"agrees: `{chosen}` is its favourite ({p_fav:.2f}).")
+    elif chosen == "none":
+        out.append(boot + f"prefers `{fav}` ({p_fav:.2f}): a ranking's favourite is not a finding"
+                   + (" (pairs are not tested)." if "+" in fav else
+                      "; its improvement is within what noise gives." if calibrated else "."))
+    elif chosen in fav.split("+"):
+        other = [c for c in fav.split("+") if c != chosen]
+        out.append(boot + f"prefers the pair `{fav}` ({p_fav:.2f}; `{chosen}` alone {p_ch:.2f}), which includes "
+                   f"`{chosen}`: adding {_code(other)} lowers the score further, but {pair_note}.")
+    else:
+        out.append(f"**The two disagree**: the {boot[4:]}prefers `{fav}` ({p_fav:.2f}; `{chosen}` {p_ch:.2f}), "
+                   f"which does not include `{chosen}`. Read `{chosen}` as the effect whose improvement noise explains "
+                   "least, not as the best description of the data; neither is shown to be the cause.")
+    singles = ef.loc[[c for c in ef.index if "+" not in c and c != "none"], "score"].astype(float)
+    if chosen != "none" and chosen in singles.index and len(singles):
+        top = str(singles.idxmin())
+        if top != chosen:
+            z = ef["z"].astype(float) if "z" in ef else pd.Series(np.nan, index=ef.index)
+            why = (f": an improvement of its size is commoner under noise (z {z[top]:.2f} against {z[chosen]:.2f})"
+                   if calibrated and np.isfinite(z[top]) and np.isfinite(z[chosen]) and z[top] < z[chosen] else "")
+            out.append(f"Among single effects the lowest score is `{top}`'s ({singles[top]:.3f} against "
+                       f"{singles[chosen]:.3f} for `{chosen}`){why}.")
+    return " ".join(out)
+
+
+def _plane_rms(res: pd.DataFrame, col: str, top: int = 2) -> list[tuple[str, float, float]]:
+    """The ``top`` planes with the largest RMS of residual column ``col`` (plane, RMS, mean), largest first."""
+    rows = []
+    for pl in dict.fromkeys(p for ps in res["planes"] for p in str(ps).split(";") if p):
+        r = res.loc[res["planes"].astype(str).str.split(";").apply(lambda ps: pl in ps), col].to_numpy(float)
+        rows.append((pl, float(np.sqrt(np.mean(r ** 2))), float(r.mean())))
+    return sorted(rows, key=lambda t: -t[1])[:top]
+
+
+def _where_lines(diag: DatasetDiagnosis) -> list[str]:
+    """The Summary's 'Where': the base model's planes (by held-out D and by held-out RMS residual) and, after a named
+    candidate, its held-out residuals' planes (the Remainder's source), each labelled with what it comes from."""
+    s, res = diag.summary, diag.residuals
+    fmt = lambda rows: ", ".join(f"`{p}` (RMS {r:.2f}, mean {m:+.2f})" for p, r, m in rows)  # noqa: E731
+    lines = [f"- **Where, base model** (no effect; held out: each direction predicted by the fit without its fold): "
+             f"lowest held-out D in plane `{s['worst_plane']}` and wrench component `{s['worst_component']}`, "
+             f"largest held-out RMS relative residual in {fmt(_plane_rms(res, 'residual_cv'))}; worst held-out "
+             f"directions {', '.join(s['worst_directions'])}; the all-direction fit is too weak in "
+             f"`{s['model_too_weak_plane']}` (mean residual {s['model_too_weak_mean_residual']:+.2f}) and too strong "
+             f"in `{s['model_too_strong_plane']}` ({s['model_too_strong_mean_residual']:+.2f}); directions outside "
+             "the model's reach envelope (no strengths within the bounds fit them): "
+             f"{', '.join(s['unreachable']) if s['unreachable'] else 'none'}."]
+    if s["chosen"] != "none":
+        lines.append(f"- **Where, after `{s['chosen']}`** (its held-out residuals, the source of the Remainder below): "
+                     f"largest held-out RMS relative residual in {fmt(_plane_rms(res, 'chosen_residual_cv'))}.")
+    lines.append(f"  D (Eq. 5.5) and the RMS residual can name different planes: D saturates (a direction missed by "
+                 f"more than about 1 / epsilon = {1 / float(s['epsilon']):.2g} of its force scores near 0 however far "
+                 "off), so it counts the directions a plane misses; the RMS is set by the largest misses, and "
+                 "over-predictions weigh most (model / measured - 1 has no upper bound).")
+    return lines
+
+
 def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping[str, str | Path],
                   a3: np.ndarray | None = None) -> None:
     """``out`` keys: radar, where, effects (and activation when ``a3`` is given)."""
@@ -135,7 +225,9 @@ def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping
     axe.axvline(base, color="k", lw=0.5)
     axe.set_xlabel(f"held-out gap 1 - D_cv + {diag.summary['penalty_per_param']} x extra parameters (lower is better)")
     axe.legend(fontsize=7, loc="lower right")
-    axe.set_title(f"Which effect: {diag.name} ({diag.summary['model']})")
+    how = "calibrated test" if diag.summary.get("calibrated") else "score ranking, uncalibrated"
+    axe.set_title(f"Which effect: {diag.name} ({diag.summary['model']}); red: named ({how}), "
+                  "P(best): bootstrap of the score ranking, pairs included", fontsize=10)
     fig.tight_layout()
     _save(fig, out["effects"])
     if a3 is not None and "activation" in out:
@@ -170,7 +262,9 @@ def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
              f"{s['alpha']:g} holds for data of that structure (docs/gap_diagnosis.md, Calibration).",
              f"- **Noise level** of the replicates: log-normal SD {s['noise_sigma']:.3f}, source "
              f"`{s['noise_source']}`" + (f": {s['noise_note']}" if s.get("noise_note") else "") + ".",
-             f"- **Remainder**: {s['remainder']} (plane structure of the held-out residuals "
+             f"- **Remainder** (from the held-out residuals of `{s['chosen']}`; planes ranked by RMS relative "
+             f"residual, as in the Summary's 'Where, {'base model' if s['chosen'] == 'none' else 'after'}'): "
+             f"{s['remainder']} (plane structure of the held-out residuals "
              f"{s['remainder_structure']:.2f},"
              f" p = {s['p_remainder_structure']:.3g}"
              + (f"; held-out gap p = {s['p_remainder_gap']:.3g} against noise-only replicates at SD "
@@ -303,16 +397,10 @@ def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str,
              f"1 - D (Eq. 5.5/5.6, epsilon = {s['epsilon']}) of held-out predictions; score = gap + "
              f"{s['penalty_per_param']} x extra parameters.", "",
              "## Summary", "",
-             f"- **Where**: worst plane `{s['worst_plane']}` and wrench component `{s['worst_component']}` (lowest "
-             f"held-out D), worst held-out directions {', '.join(s['worst_directions'])}; the fitted model is too weak "
-             f"in `{s['model_too_weak_plane']}` (mean residual {s['model_too_weak_mean_residual']:+.2f}) and too "
-             f"strong in `{s['model_too_strong_plane']}` ({s['model_too_strong_mean_residual']:+.2f}); directions "
-             f"outside the model's reach envelope (no strengths within the bounds fit them): "
-             f"{', '.join(s['unreachable']) if s['unreachable'] else 'none'}.",
+             *_where_lines(diag),
              f"- **Which**: {s['decision']}"
              + (f"; `{s['chosen']}` fitted at {s['chosen_theta']}" if s['chosen'] != "none" else "")
-             + f"; bootstrap P(best) of `{s['chosen']}` = "
-             f"{s['p_best_chosen']:.2f}." + (f" {s['best_score_note']}." if s.get("best_score_note") else "")
+             + f". {ranking_note(s, diag.effects)}"
              + (f" Parameters at a bound of their range: {s['at_bound']}." if s.get("at_bound", "-") != "-" else ""),
              f"- **How far**: held-out gap {s['gap_before']:.3f} -> {s['gap_after']:.3f}; held-out RMS relative "
              f"residual {s['rms_before']:.3f} -> {s['rms_after']:.3f}; all-direction fit D {s['D_fit_base']:.3f} -> "
@@ -320,7 +408,9 @@ def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str,
              *_calibration_lines(diag),
              "## Which effect: ranking", "", markdown_table(show), "",
              "`delta_ci_*`: 90% bootstrap interval (directions resampled) of the score difference to `none`; "
-             "`p_best`: share of bootstrap samples in which the candidate ranks first; `D_fit`: fit on all "
+             "`p_best`: share of bootstrap samples in which the candidate ranks first (the score ranking, pairs "
+             "included; the named effect is decided by the calibrated test, columns `p_raw` and `z`, single effects "
+             "only); `D_fit`: fit on all "
              "directions; `theta`: effect parameters of that fit.", "",
              f"![which]({figures['effects']})", "",
              *_discrimination_lines(diag),
