@@ -1,14 +1,17 @@
 """The gap report reads without contradicting itself: it says which statistic names the effect and how the bootstrap
-ranking relates to it, and labels each 'where' with what it is computed from.
+ranking relates to it, labels each 'where' with what it is computed from, and draws no empty activation panel.
 Checked on hand-made diagnoses (no fitting), so each statement's trigger is known."""
 
 from types import SimpleNamespace
 
+import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+import pytest
 
 import neckstrength.gap.diagnose as dg
 from neckstrength.gap.report import ranking_note, write_report
+from neckstrength.gap.stage import DiagnoseResult, write_diagnose
 
 
 def _effects(rows):
@@ -113,3 +116,37 @@ def test_where_and_remainder_say_what_they_are_computed_from(directions, tmp_pat
     # the Which line says why the named effect's P(best) is low (the pair that includes it)
     which = next(ln for ln in text.splitlines() if ln.startswith("- **Which**"))
     assert "prefers the pair `asymmetry+kinematic` (0.90; `asymmetry` alone 0.10)" in which
+
+
+@pytest.fixture
+def kept(monkeypatch):
+    figs = []
+    monkeypatch.setattr(plt, "close", lambda fig=None: figs.append(fig))
+    yield figs
+    monkeypatch.undo()
+    for f in figs:
+        plt.close(f)
+
+
+def _write(diag, directions, out, a3=None):
+    inputs = SimpleNamespace(directions=directions, a3=a3, data=SimpleNamespace(name=diag.name), extra_trials=None,
+                             settings_text="-")
+    res = DiagnoseResult(diag, {}, diag.summary, pd.DataFrame(), inputs)
+    outputs = {f"fig_{k}": out / f"fig_{k}.png" for k in ("radar", "where", "effects", "activation")}
+    outputs.update({"summary": out / "summary.json", "report": out / "report.md"})
+    write_diagnose(res, outputs)
+    return (out / "report.md").read_text()
+
+
+def test_no_activation_data_gives_the_prediction_or_no_figure(directions, tmp_path, kept):
+    # without Table A.3 the activation figure shows the model's prediction (two curves with values), not a text
+    # placeholder, and the report links it under its own heading
+    text = _write(_diagnosis(directions), directions, tmp_path / "pred")
+    fig = next(f for f in kept if f._suptitle is None and "Predicted activation" in f.axes[0].get_title())
+    lines = [ln for ln in fig.axes[0].get_lines() if np.isfinite(ln.get_ydata()).any()]
+    assert len(lines) == 2 and fig.axes[0].get_xlabel() and fig.axes[0].get_ylabel()
+    assert "## Predicted activation" in text and "![activation](fig_activation.png)" in text
+    # nothing to show (no EMG-recorded group): no figure, no link
+    text = _write(_diagnosis(directions, activations=False), directions, tmp_path / "none")
+    assert not (tmp_path / "none" / "fig_activation.png").exists() and "fig_activation" not in text
+    assert (tmp_path / "none" / "fig_radar.png").exists()

@@ -143,8 +143,10 @@ def _where_lines(diag: DatasetDiagnosis) -> list[str]:
 
 
 def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping[str, str | Path],
-                  a3: np.ndarray | None = None) -> None:
-    """``out`` keys: radar, where, effects (and activation when ``a3`` is given)."""
+                  a3: np.ndarray | None = None) -> set[str]:
+    """``out`` keys: radar, where, effects, activation. The activation figure shows Table A.3 (``a3``) against the
+    model's predicted activation, or without ``a3`` the prediction alone; it is not written when there is neither
+    (no EMG-recorded group), so that no figure is an empty panel. Returns the keys of the figures written."""
     r = diag.residuals.set_index("direction")
     chosen = diag.summary["chosen"]
     d = directions.set_index("name").loc[r.index].reset_index()
@@ -230,21 +232,28 @@ def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping
                   "P(best): bootstrap of the score ranking, pairs included", fontsize=10)
     fig.tight_layout()
     _save(fig, out["effects"])
-    if a3 is not None and "activation" in out:
+    written = {k for k in ("radar", "where", "effects") if k in out}
+    series = [(c, kw) for c, kw in (("none", {"color": "black"}), (chosen, {"color": "red"}))
+              if c in diag.activations and np.isfinite(diag.activations[c]).any()]
+    if "activation" in out and (a3 is not None or series):
         fig, axa = plt.subplots(figsize=(12, 5))
-        axa.plot(x, a3, "b--o", label="Table A.3 (measured, normalised)")
-        for c, kw in (("none", {"color": "black"}), (chosen, {"color": "red"})):
-            if c in diag.activations:
-                axa.plot(x, diag.activations[c], marker="s", label=f"model ({c}): mean EMG-group activation", **kw)
+        if a3 is not None:
+            axa.plot(x, a3, "b--o", label="Table A.3 (measured, normalised)")
+        for c, kw in dict(series).items():
+            axa.plot(x, diag.activations[c], marker="s", label=f"model ({c}): mean EMG-group activation", **kw)
         axa.set_xticks(x)
         axa.set_xticklabels(res["direction"], rotation=80, fontsize=7)
         axa.set_ylim(0, 1.05)
         axa.set_xlabel("test direction")
         axa.set_ylabel("normalised activation (0-1)")
         axa.legend(fontsize=8)
-        axa.set_title(f"Withheld activation data vs model prediction: {diag.name}")
+        axa.set_title(f"Withheld activation data vs model prediction: {diag.name}" if a3 is not None else
+                      f"Predicted activation at the model's maximum: {diag.name} (no measured activation: what EMG "
+                      "would show if the model is right)")
         fig.tight_layout()
         _save(fig, out["activation"])
+        written.add("activation")
+    return written
 
 
 def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
@@ -433,6 +442,12 @@ def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str,
                   markdown_table(act), ""]
         if "activation" in figures:
             lines += [f"![activation]({figures['activation']})", ""]
+    elif "activation" in figures:
+        lines += ["## Predicted activation", "",
+                  "No measured activation for this data set. The figure shows the model's mean activation of the "
+                  "EMG-recorded groups at its predicted maximum (fit on all directions; the base model and the named "
+                  "candidate): what surface EMG would show if the model is right.", "",
+                  f"![activation]({figures['activation']})", ""]
     lines += ["## Per direction", "", markdown_table(res.drop(columns=["planes"])), "",
               "## Settings", "", settings_text, ""]
     lines += _protocol_lines(diag)

@@ -164,7 +164,9 @@ def run_diagnose(settings: DiagnoseSettings, inputs: DiagnoseInputs, resume_dir:
 def write_diagnose(result: DiagnoseResult, outputs: Mapping[str, str | Path]) -> None:
     """Write the tables, figures, ``report.md`` and ``summary.json`` of :func:`run_diagnose` (keys of ``outputs``:
     :data:`DATASET_FILES`, ``fig_<name>`` for :data:`FIGURES`, 'summary', 'report'; optional 'protocols' and
-    'update'). Keys not in ``outputs`` are not written."""
+    'update'). Keys not in ``outputs`` are not written, nor the activation figure where there is nothing to show (no
+    Table A.3 and no EMG-recorded group: :func:`neckstrength.gap.report.write_figures`); the report links the figures
+    written."""
     inp, diag = result.inputs, result.diagnosis
     if result.update is not None and "update" in outputs:
         hdr_u = f"extra trials {inp.extra_trials}: posterior of the top candidates (docs/gap_diagnosis.md)"
@@ -173,18 +175,7 @@ def write_diagnose(result: DiagnoseResult, outputs: Mapping[str, str | Path]) ->
         if k in outputs:
             atomic_write_csv(df, outputs[k], result.header, float_format="%.6g")
     figs = {k: outputs[f"fig_{k}"] for k in FIGURES if f"fig_{k}" in outputs}
-    if inp.a3 is None and "activation" in figs:
-        Path(figs["activation"]).parent.mkdir(parents=True, exist_ok=True)
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(6, 2))
-        ax.text(0.5, 0.5, f"no withheld activation data for {inp.data.name}", ha="center", va="center")
-        ax.axis("off")
-        fig.savefig(figs["activation"], dpi=80)
-        plt.close(fig)
-    write_figures(diag, inp.directions, figs, inp.a3)
-    rel = {k: Path(v).name for k, v in figs.items()}
-    if inp.a3 is None:
-        rel.pop("activation", None)
+    written = write_figures(diag, inp.directions, figs, inp.a3)
+    rel = {k: Path(v).name for k, v in figs.items() if k in written}
     write_report(diag, outputs["report"], rel, result.activation_check, inp.settings_text)
     atomic_write_text(json.dumps(result.summary, indent=2, default=float), outputs["summary"])
