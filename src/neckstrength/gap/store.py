@@ -25,18 +25,29 @@ from neckstrength.gap.engine import BlindData, DiagnosisSettings
 
 #: Sub-packages whose source enters :func:`code_fingerprint`.
 CODE_PACKAGES = ("gap", "wrench", "model", "estimation", "abc", "seeds.py")
+#: Modules of those packages that only render a stored result (the report's text and figures): left out of the
+#: fingerprint, so that after a change to the report alone a rerun reuses the stored diagnoses and renders them again.
+RENDER_ONLY = ("gap/report.py",)
+
+
+def fingerprint_files() -> list[Path]:
+    """The source files whose content enters :func:`code_fingerprint`, in order."""
+    root = Path(__file__).resolve().parents[1]
+    out = []
+    for pkg in CODE_PACKAGES:
+        files = sorted((root / pkg).rglob("*.py")) if (root / pkg).is_dir() else [root / pkg]
+        out += [f for f in files if f.relative_to(root).as_posix() not in RENDER_ONLY]
+    return out
 
 
 def code_fingerprint() -> str:
-    """Hash of the source files of :data:`CODE_PACKAGES` (any change to them, comments included, gives new keys:
-    rerunning costs time, reusing a result of other code could give a wrong answer)."""
+    """Hash of the source files of :data:`CODE_PACKAGES` but :data:`RENDER_ONLY` (any change to them, comments
+    included, gives new keys: rerunning costs time, reusing a result of other code could give a wrong answer)."""
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
-    for pkg in CODE_PACKAGES:
-        files = sorted((root / pkg).rglob("*.py")) if (root / pkg).is_dir() else [root / pkg]
-        for f in files:
-            h.update(str(f.relative_to(root)).encode())
-            h.update(f.read_bytes())
+    for f in fingerprint_files():
+        h.update(str(f.relative_to(root)).encode())
+        h.update(f.read_bytes())
     return h.hexdigest()
 
 
