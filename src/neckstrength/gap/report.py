@@ -81,8 +81,8 @@ def ranking_note(s: Mapping, effects: pd.DataFrame) -> str:
         return " ".join(out + ["No bootstrap was run."])
     fav = str(pb.idxmax())
     p_fav, p_ch = float(pb[fav]), float(pb.get(chosen, np.nan))
-    boot = (f"The bootstrap P(best) (share of resampled direction sets in which a candidate, pairs included, has the "
-            f"lowest score; no false-alarm control) ")
+    boot = ("The bootstrap P(best) (share of resampled direction sets in which a candidate, pairs included, has the "
+            "lowest score; no false-alarm control) ")
     pair_note = "pairs are not tested, so that addition is not a finding" if calibrated else "pairs cost parameters"
     if fav == chosen:
         out.append(boot + f"agrees: `{chosen}` is its favourite ({p_fav:.2f}).")
@@ -95,7 +95,7 @@ def ranking_note(s: Mapping, effects: pd.DataFrame) -> str:
         out.append(boot + f"prefers the pair `{fav}` ({p_fav:.2f}; `{chosen}` alone {p_ch:.2f}), which includes "
                    f"`{chosen}`: adding {_code(other)} lowers the score further, but {pair_note}.")
     else:
-        out.append(f"**The two disagree**: the {boot[4:]}prefers `{fav}` ({p_fav:.2f}; `{chosen}` {p_ch:.2f}), "
+        out.append(f"**The two disagree**: {boot[0].lower() + boot[1:]}prefers `{fav}` ({p_fav:.2f}; `{chosen}` {p_ch:.2f}), "
                    f"which does not include `{chosen}`. Read `{chosen}` as the effect whose improvement noise explains "
                    "least, not as the best description of the data; neither is shown to be the cause.")
     singles = ef.loc[[c for c in ef.index if "+" not in c and c != "none"], "score"].astype(float)
