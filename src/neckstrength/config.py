@@ -472,6 +472,8 @@ def calibration_settings(config: Mapping) -> CalibrationSettings:
     return CalibrationSettings(replicates=int(c.get("replicates", 39)), alpha=float(c.get("alpha", 0.05)),
                                noise=noise if isinstance(noise, str) else float(noise), noise_prior=prior,
                                repeats=repeats, sensitivity=bool(c.get("sensitivity", True)),
+                               sensitivity_replicates=(None if c.get("sensitivity_replicates") is None
+                                                       else int(c["sensitivity_replicates"])),
                                power_sizes=tuple(float(u) for u in c.get("power_sizes", (0.25, 0.5, 1.0))),
                                power_replicates=int(c.get("power_replicates", 5)),
                                power_target=float(c.get("power_target", 0.8)),

@@ -134,6 +134,13 @@ def test_auto_noise_uses_the_repeats_when_present(ctx_p2):
     assert d["noise_source"] == "repeats" and d["noise_sigma"] == pytest.approx(0.02)
     assert [r["sigma"] for r in d["sensitivity"]] == [0.016, 0.02, 0.026]
     assert "cannot be tested" in d["remainder"] or "not explained" in d["remainder"]   # 4 replicates: p >= 0.2
+    assert [r["replicates"] for r in d["sensitivity"]] == [4, 4, 4]
+    # fewer at the range's ends: each end's null has its own count, the central decision keeps its own
+    d3 = dg.diagnose(ctx_p2, data, _settings(replicates=4, noise="auto", power_replicates=0, sensitivity_replicates=2,
+                                             repeats=(("noisy", 0.02, 40, 0.016, 0.026),)))[0]
+    assert [r["replicates"] for r in d3.summary["sensitivity"]] == [2, 4, 2]
+    assert [len(c.t_null) for _, c in d3.calibration.sensitivity] == [2, 2] and len(d3.calibration.t_null) == 4
+    assert d3.summary["p_value"] == d["p_value"] and d3.summary["chosen"] == d["chosen"]
 
 
 def test_parameters_at_their_bounds_are_flagged(ctx_p2):
@@ -515,6 +522,9 @@ def test_calibration_settings_noise_from_the_config(tmp_path):
     cs = calibration_settings({"gap": {"calibration": {"replicates": 9, "noise_table": str(t),
                                                        "noise_prior": {"low": 0.04, "central": 0.07, "high": 0.2}}}})
     assert cs.noise == "auto" and cs.noise_prior == (0.04, 0.07, 0.2) and cs.sensitivity
+    assert cs.sensitivity_replicates is None and cb.sensitivity_replicates(cs) == 9
+    cs19 = calibration_settings({"gap": {"calibration": {"replicates": 39, "sensitivity_replicates": 19}}})
+    assert cb.sensitivity_replicates(cs19) == 19
     assert cs.repeats == (("P01", 0.04, 18, 0.03, 0.06),)            # P02 has no repeats: not listed
     assert cb.estimate_noise(np.array([0.5]), cs.noise, "P02", cs.repeats, cs.noise_prior).sigma == 0.07
     for bad in ("trials", -0.1, True):

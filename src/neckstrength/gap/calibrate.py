@@ -367,6 +367,12 @@ def remainder_verdict(rem: dict, cal: "Calibration", alpha: float, where: str) -
     return "the remaining held-out gap is consistent with noise", False
 
 
+def sensitivity_replicates(cs: CalibrationSettings) -> int:
+    """Noise-only replicates at each end of the noise's range (``cs.sensitivity_replicates``, default
+    ``cs.replicates``)."""
+    return int(cs.replicates if cs.sensitivity_replicates is None else cs.sensitivity_replicates)
+
+
 def _truth_phis(sim_base: Simulator, phi_fit: np.ndarray, T: np.ndarray, sigma: float, cs: CalibrationSettings,
                 name: str, seed: int, tag: str = "") -> np.ndarray:
     """Truth log strengths of a data set's simulated data sets: rows ``0..R-1`` the noise-only ones, then
@@ -374,7 +380,7 @@ def _truth_phis(sim_base: Simulator, phi_fit: np.ndarray, T: np.ndarray, sigma: 
     how many power replicates follow (a diagnosis without power draws the same null)."""
     n_pow = len(cs.power_sizes) * cs.power_replicates
     if tag:                                                # a sensitivity null: its own stream, no power rows
-        return truth_strengths(sim_base, phi_fit, T, sigma, cs.strength_spread, int(cs.replicates),
+        return truth_strengths(sim_base, phi_fit, T, sigma, cs.strength_spread, sensitivity_replicates(cs),
                                derive_rng(seed, f"gap/truth/{name}/{tag}"))
     return truth_strengths(sim_base, phi_fit, T, sigma, cs.strength_spread, int(cs.replicates) + n_pow,
                            derive_rng(seed, f"gap/truth/{name}"))
@@ -459,7 +465,9 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
     sens = {i: ([("low", sig[i].low), ("high", sig[i].high)] if cs.sensitivity and np.isfinite(sig[i].low)
                 else []) for i in range(nd)}
 
-    def add_null(i, n, sigma, ph, kind, tag):
+    R_sens = sensitivity_replicates(cs)
+
+    def add_null(i, n, sigma, ph, kind, tag, R=R):
         if el_null is not None:                            # the finer structure: element factors per replicate
             fac = el_null.factors(R, derive_rng(s.seed, f"gap/elements/{n}" + (f"/{tag}" if tag else "")))
             f_null = el_null.forces(sim_base.muscles(ph[:R]), fac)
@@ -476,7 +484,8 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
         add_null(i, n, sig[i].sigma, phis[i], "null", "")
         for lab, sg in sens[i]:
             tag = f"noise{sg:.6g}"
-            add_null(i, n, sg, _truth_phis(sim_base, phi_fit[i], T[i], sg, cs, n, s.seed, tag), f"null_{lab}", tag)
+            add_null(i, n, sg, _truth_phis(sim_base, phi_fit[i], T[i], sg, cs, n, s.seed, tag), f"null_{lab}", tag,
+                     R_sens)
     ps, pm = [], []
     if cs.power_replicates > 0:      # screened after the null, in two stages (:func:`_power_hits`)
         ps, pm = _power_sets(ctx, names, phis, f_fit, [sg.sigma for sg in sig], [list(effects)] * nd, cs, s.seed)
@@ -489,7 +498,7 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
         f"truths: {cs.null_truth}"
         + (f" (element spread {cs.element_spread:g})" if cs.null_truth == "elements" else "") + "; noise "
         + ", ".join(f"{n} {sg.sigma:.3f} ({sg.source})" for n, sg in zip(names, sig))
-        + (f"; sensitivity: {R} more at each end of the noise's range" if any(sens.values()) else ""))
+        + (f"; sensitivity: {R_sens} more at each end of the noise's range" if any(sens.values()) else ""))
     if sims:
         idx = [m[0] for m in meta_ok]
         sc = screen(ctx, sims, folds[idx], effects, s, say, workers, checkpoints)
@@ -500,7 +509,7 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
         gap_null = sc.gap[rows]
         delta_null = gap_null[:, :1] - gap_null[:, 1:]
         mu = delta_null.mean(axis=0)
-        sd = np.maximum(delta_null.std(axis=0, ddof=1) if R > 1 else np.zeros(len(E)), cs.sd_floor)
+        sd = np.maximum(delta_null.std(axis=0, ddof=1) if len(rows) > 1 else np.zeros(len(E)), cs.sd_floor)
         _, _, t_null, _ = maxt(delta_null, mu, sd, np.zeros(0))
         return Calibration(sigma, source, E, delta_null, mu, sd, t_null, gap_null, sc.structure[rows],
                            pd.DataFrame(), sc.gap[jo], sc.structure[jo], np.asarray(phi_fit[i], float).copy(),

@@ -601,7 +601,8 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
         sens_rows = [{"noise": f"{nz.source} (central)" if nz.source == "prior" else nz.source, "sigma": cal.sigma,
                       "named": chosen, "p_value": dec["p_adjusted"], "best": dec["best"],
                       "p_remainder_gap": rem["p_gap"], "p_remainder_structure": rem["p_structure"],
-                      "remainder": _verdict_word(unexplained), "gap_over_noise": rms_obs / cal.sigma}]
+                      "remainder": _verdict_word(unexplained), "gap_over_noise": rms_obs / cal.sigma,
+                      "replicates": int(len(cal.t_null))}]
         for lab, c2 in (cal.sensitivity or []):
             ch2, _, d2 = _calibrated_decision(c2, refined, pfull, ca.alpha)
             j2 = singles.index(ch2)
@@ -610,7 +611,8 @@ def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_pa
             sens_rows.append({"noise": f"{nz.source} {lab}", "sigma": c2.sigma, "named": ch2,
                               "p_value": d2["p_adjusted"], "best": d2["best"], "p_remainder_gap": r2["p_gap"],
                               "p_remainder_structure": r2["p_structure"], "remainder": _verdict_word(u2),
-                              "gap_over_noise": float(c2.rms_obs[j2]) / c2.sigma})
+                              "gap_over_noise": float(c2.rms_obs[j2]) / c2.sigma,
+                              "replicates": int(len(c2.t_null))})
         sens_rows.sort(key=lambda r: r["sigma"])
         pw, pws = cal.power, power_summary(cal.power, ca.power_target)
         ch_row = eff_tab.set_index("candidate").loc[chosen]

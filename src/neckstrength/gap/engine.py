@@ -45,7 +45,8 @@ class CalibrationSettings:
     misfit counts as noise, so the size of the remaining gap cannot be tested). ``repeats``: per data set
     ``(name, log SD, df, ci_low, ci_high)`` from the trial import's ``noise.csv``. ``sensitivity``: the decision
     again at the ends of the noise's range (the prior's low and high, or the repeats' 95% interval) with
-    ``replicates`` noise-only data sets each. ``power_sizes``: effect sizes (share of
+    ``sensitivity_replicates`` noise-only data sets each (None: ``replicates``; p-values there have resolution
+    ``1 / (sensitivity_replicates + 1)``). ``power_sizes``: effect sizes (share of
     the way from neutral to the far bound) at which the power is simulated, ``power_replicates`` data sets per
     effect and size, ``power_target`` the share identified that counts as detectable. ``strength_spread``: SD of
     individual log strengths, for the strengths the directions leave undetermined in the simulated truths.
@@ -60,6 +61,7 @@ class CalibrationSettings:
     noise_prior: tuple[float, float, float] = (0.05, 0.08, 0.15)
     repeats: tuple[tuple, ...] = ()
     sensitivity: bool = True
+    sensitivity_replicates: int | None = None
     power_sizes: tuple[float, ...] = (0.25, 0.5, 1.0)
     power_replicates: int = 5
     power_target: float = 0.8

@@ -308,12 +308,15 @@ def _sensitivity_lines(s: dict) -> list[str]:
     rows = s.get("sensitivity") or []
     if len(rows) < 2:
         return []
-    tab = pd.DataFrame(rows)[["noise", "sigma", "named", "p_value", "best", "remainder", "p_remainder_gap",
-                              "p_remainder_structure", "gap_over_noise"]]
+    cols = ["noise", "sigma", "replicates", "named", "p_value", "best", "remainder", "p_remainder_gap",
+            "p_remainder_structure", "gap_over_noise"]
+    tab = pd.DataFrame(rows)
+    tab = tab[[c for c in cols if c in tab]]
     return ["### Sensitivity to the noise level", "",
             "The same decision with noise-only replicates at the ends of the noise's range (the prior's low and "
-            "high values, or the repeat-trial estimate's 95% interval; as many replicates as the main decision, no "
-            "power); `gap_over_noise`: held-out RMS log residual of the named candidate / noise SD.", "",
+            "high values, or the repeat-trial estimate's 95% interval; `replicates` noise-only data sets each, so "
+            "p-values have resolution 1 / (replicates + 1); no power); `gap_over_noise`: held-out RMS log residual "
+            "of the named candidate / noise SD.", "",
             markdown_table(tab), ""]
 
 
