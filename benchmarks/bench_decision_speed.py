@@ -3,9 +3,11 @@ cores): CPU seconds per patient of `run_decision_study` as the study runs it, ag
 code before the speed-ups: numpy's BLAS on its default threads, the dual simplex packed with every cached basis),
 timed in the same run on the same patients (the study's own truths and candidate streams, participants i of
 `clinician_decision`), and the numbers of both compared: the same test order and every test's log BF, its Monte
-Carlo error and P(deficit) equal to ``--tol`` (relative).
+Carlo error and P(deficit) equal to ``--tol`` (relative). ``--reference bounded``: the reference is the current
+code with only the LP-free bounds of the EMG tests off (`JointPosterior.dual_bound_bounded`), both on one BLAS thread.
 
     python benchmarks/bench_decision_speed.py [--patients 0 1 100 101] [--protocols forces] [--out speed.json]
+        [--reference before|bounded]
 
 Each patient runs in this process one after the other, reference and new path in alternating order (the first
 patient's reference first, the next one's new path first), after a warm-up that loads the compiled solver. CPU
@@ -28,17 +30,20 @@ import numpy as np
 
 
 @contextlib.contextmanager
-def reference_path():
-    """The solver's bookkeeping as before the speed-ups (the study's own switch, ``one_blas_thread``, is passed
-    separately)."""
+def reference_path(kind: str = "before"):
+    """``before``: the solver's bookkeeping as before the speed-ups and no LP-free bounds for tests with activation
+    bounds (the study's own switch, ``one_blas_thread``, is passed separately); ``bounded``: only the LP-free bounds
+    of tests with activation bounds off (``JointPosterior.dual_bound_bounded``; the EMG protocols)."""
+    from neckstrength.sequential.joint import JointPosterior
     from neckstrength.wrench import batched
 
-    old = batched.SIMPLEX_PACK_STARTS
-    batched.SIMPLEX_PACK_STARTS = False
+    old = batched.SIMPLEX_PACK_STARTS, JointPosterior.dual_bound_bounded
+    batched.SIMPLEX_PACK_STARTS = kind != "before" and old[0]
+    JointPosterior.dual_bound_bounded = False
     try:
         yield
     finally:
-        batched.SIMPLEX_PACK_STARTS = old
+        batched.SIMPLEX_PACK_STARTS, JointPosterior.dual_bound_bounded = old
 
 
 def main() -> int:
@@ -55,6 +60,8 @@ def main() -> int:
                     help="cohort indices (the study's deficit patients come first: 0 .. n_deficit - 1)")
     ap.add_argument("--protocols", nargs="+", default=["forces"])
     ap.add_argument("--tol", type=float, default=1e-9, help="relative tolerance of the numbers' comparison")
+    ap.add_argument("--reference", choices=("before", "bounded"), default="before",
+                    help="before: every speed-up off (default); bounded: only the EMG tests' LP-free bounds off")
     ap.add_argument("--out", default=None, help="JSON with every row and the summary")
     a = ap.parse_args()
 
@@ -90,12 +97,12 @@ def main() -> int:
             st = replace(study, protocols=(protocol,))
             out = {}
             for path in (("reference", "new") if k % 2 == 0 else ("new", "reference")):
-                ctx = reference_path() if path == "reference" else contextlib.nullcontext()
+                ctx = reference_path(a.reference) if path == "reference" else contextlib.nullcontext()
                 c0, w0 = time.process_time(), time.perf_counter()
                 with ctx:
                     r = run_decision_study(model, dirs, U, fs, model.strengths, dec, joint, st, rng_for,
                                            participants=[i], pset=pset,
-                                           one_blas_thread=(path == "new"))
+                                           one_blas_thread=(path == "new" or a.reference == "bounded"))
                 out[path] = (r, time.process_time() - c0, time.perf_counter() - w0)
             k += 1
             (ra, ca, wa), (rb, cb, wb) = out["reference"], out["new"]
@@ -116,6 +123,7 @@ def main() -> int:
     ok = all(r["same_order"] and max(r[f"max_rel_diff_{c}"] for c in ("log_bf", "log_bf_se", "p_deficit")) <= a.tol
              for r in rows)
     summary = {"date": time.strftime("%Y-%m-%d"), "patients": a.patients, "protocols": a.protocols,
+               "reference": a.reference,
                "load_before": load0, "load_after": load1, "numbers_equal": ok, "tol": a.tol}
     n_all = study.cohort.n_deficit + study.cohort.n_normal
     for protocol in a.protocols:

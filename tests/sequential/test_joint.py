@@ -121,6 +121,73 @@ def test_dual_bounds_bound_every_term_from_above(setup):
     assert np.mean(np.isclose(bound[below], exact[below], rtol=1e-4)) > 0.5
 
 
+@pytest.fixture(scope="module")
+def emg_setup(p2m7_full_config):
+    """p2m7's simulated 'Sim' set with surface EMG bounds (true activation +- 0.05) of TS-B and TS-E."""
+    _, model, directions = p2m7_full_config
+    fa = thesis_f_actual(model, ROOT / "data" / "thesis", "Sim", table="table_6_1_p2m7_sequential.csv")
+    data = simulated_dataset(model, directions, "Sim", fa, emg_groups=("TS-B", "TS-E"))
+    assert data.alpha_lb[:, :].max() > 0                      # some lower bounds above 0
+    f0, _, _ = sq.scaled_baseline(model, data)
+    return model, data, f0
+
+
+def _emg_post(emg_setup, seed, n_tests=4, scale=1.1, over=0.0, **flags):
+    """The posterior after ``n_tests`` tests with EMG bounds; ``over`` > 0: the recorded muscles' activations
+    bounded to ``[a + band + over, 1]`` instead (more than the forces need: many candidates cannot produce them)."""
+    model, data, f0 = emg_setup
+    post = JointPosterior(model, data.directions, data.U, data.force_scale, f0,
+                          JointSettings(n_candidates=2000, resample_ess=0.3), np.random.default_rng(seed))
+    for k, v in flags.items():
+        setattr(post, k, v)
+    for d in data.directions[:n_tests]:
+        k = data.directions.index(d)
+        lb, ub = data.alpha_lb[k].copy(), data.alpha_ub[k].copy()
+        if over:
+            rec = ub < 1
+            lb[rec], ub[rec] = np.minimum(ub[rec] + over, 1.0), 1.0
+        post.update(d, scale * data.forces[k], activations=(lb, ub))
+    return post
+
+
+def test_dual_bounds_of_tests_with_emg_bounds_leave_the_chain_unchanged_and_bound_every_term(emg_setup):
+    """Tests with activation bounds (EMG) get LP-free bounds too, from each test's own solver: the chain after
+    resample-move equals the reference's (every LP solved) and the one without them, with fewer LPs. The bounds are
+    at least the exact terms of random strength vectors, also where lower activation bounds make the dual bound
+    negative (no solution: wrench 0), which the clip at 0 handles (without it, the check fails there), and where a
+    cached infeasibility certificate sets the term to its value at 0."""
+    runs = {label: _emg_post(emg_setup, 7, early_reject=e, dual_bound_reject=b, dual_bound_bounded=bb)
+            for label, e, b, bb in (("reference", False, False, False), ("unbounded only", True, True, False),
+                                    ("with emg bounds", True, True, True))}
+    ref = runs["reference"]
+    assert ref.n_resamples >= 2 and 0.02 < ref.last_acceptance < 0.98
+    for label in ("unbounded only", "with emg bounds"):
+        post = runs[label]
+        assert post.n_resamples == ref.n_resamples and post.last_acceptance == ref.last_acceptance, label
+        np.testing.assert_allclose(post.F, ref.F, rtol=1e-12)
+        np.testing.assert_allclose(post.W, ref.W, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(post.weights(), ref.weights(), rtol=1e-9, atol=1e-15)
+    assert runs["with emg bounds"].n_lps < runs["unbounded only"].n_lps < ref.n_lps, \
+        [runs[k].n_lps for k in ("with emg bounds", "unbounded only", "reference")]
+    rng = np.random.default_rng(0)
+    for post in (runs["with emg bounds"], _emg_post(emg_setup, 7, over=0.3)):
+        cols = post._tested_cols()
+        assert all(t["bounds"] is not None for t in post.tests)
+        F = post.F[rng.integers(len(post.F), size=3000)] * np.exp(0.2 * rng.standard_normal((3000, post.model.m)))
+        W = post._wrenches(F, cols)
+        exact = post._loglik_cols(W, cols)
+        bound = post._loglik_upper_bounds(F, cols)
+        assert np.all(bound >= exact - 1e-9 * np.abs(exact)), float((bound - exact).min())
+        below = W[:, cols] < np.array([t["w_meas"] for t in post.tests])
+        assert below.mean() > 0.2 and np.mean(np.isclose(bound[below], exact[below], rtol=1e-4)) > 0.3
+    raw = [(post._dual_bound_matrix(int(t["i"]), t["bounds"]).T @ F.T).min(axis=0) for t in post.tests]
+    assert min(r.min() for r in raw) < 0 and (W[:, cols] == 0).any()          # the clip at 0 is exercised
+    # and the cached infeasibility certificates (the term at 0 exactly where one proves no solution)
+    C = [post._farkas_matrix(int(t["i"]), t["bounds"]) for t in post.tests]
+    proven = np.column_stack([(F @ c < 0).any(axis=1) if c is not None else np.zeros(len(F), bool) for c in C])
+    assert proven.any() and np.all(W[:, cols][proven] == 0)
+
+
 def test_mc_se_is_the_iid_error_before_resampling_and_tracks_the_spread_after(setup):
     """Monte Carlo error of a posterior mean (JointPosterior.mc_se, the session's ± on P(deficit)): on the prior
     draws it is the iid formula sd / sqrt(N); after resample-move (clusters of descendants of one draw) it is

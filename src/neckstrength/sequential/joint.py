@@ -492,6 +492,10 @@ class JointPosterior:
     #: (False: the LPs decide every rejection; the same chain either way)
     dual_bound_reject = True
 
+    #: the dual bounds also for tests with activation bounds (EMG), from each such test's own solver, with its
+    #: cached infeasibility certificates (False: those tests' LPs decide; the same chain either way)
+    dual_bound_bounded = True
+
     #: the bound of each test: the smallest over this many most recently hit bases of its direction's solver
     DUAL_BOUND_BASES = 16
 
@@ -541,50 +545,82 @@ class JointPosterior:
             alive, ub = alive[keep], ub[keep]
         return Wp
 
-    def _dual_bound_matrix(self, c: int) -> np.ndarray | None:
-        """(m x k) dual vectors of the most recently hit cached bases of direction ``c`` (unbounded, this
-        posterior's model and cache), or None where there is none or the wrenches come from elsewhere (a subclass's
-        solver, activation bounds)."""
-        if type(self)._solve_all is not JointPosterior._solve_all:
+    def _dual_bound_matrix(self, c: int, bounds=None) -> np.ndarray | None:
+        """(m x k) dual vectors of the most recently hit cached bases of direction ``c``, or None where there is none
+        or the wrenches come from elsewhere (a subclass's solver). Without ``bounds`` the unbounded solver's (this
+        posterior's model and cache); with a test's activation bounds ``(lb, ub)`` that test's own solver (in
+        :attr:`bounded_cache`), whose dual vectors ``max(d lb, d ub)`` may be negative where a lower bound is."""
+        if bounds is None and type(self)._solve_all is not JointPosterior._solve_all:
+            return None
+        if bounds is not None and (not self.dual_bound_bounded or type(self)._bounded is not JointPosterior._bounded):
             return None
         memo = getattr(self, "_dual_solvers", None)
-        if memo is None or memo[0] is not self.cache:
-            memo = self._dual_solvers = (self.cache, {})
-        solver = memo[1].get(c)
+        if memo is None or memo[0] is not self.cache or memo[1] is not self.bounded_cache:
+            memo = self._dual_solvers = (self.cache, self.bounded_cache, {})
+        if bounds is None:
+            key, cache = c, self.cache
+            lb, ub = np.zeros(self.model.m), np.ones(self.model.m)
+        else:
+            lb, ub = (np.asarray(x, float) for x in bounds)
+            key, cache = (c, lb.tobytes(), ub.tobytes()), self.bounded_cache
+        solver = memo[2].get(key)
         if solver is None:
             # the solver the batched call made for this direction (its b = J^T u as that call rounds it)
             R = np.asarray(self.model.moment_arms, float)
             b = np.asarray(self.model.JT, float) @ self.U[c]
-            found = [e for e in self.cache.entries()
-                     if e.R.shape == R.shape and np.array_equal(e.b, b) and not e.lb.any() and np.all(e.ub == 1.0)
-                     and np.array_equal(e.R, R)]
+            found = [e for e in cache.entries()
+                     if e.R.shape == R.shape and np.array_equal(e.b, b) and np.array_equal(e.lb, lb)
+                     and np.array_equal(e.ub, ub) and np.array_equal(e.R, R)]
             if not found:
                 return None
-            solver = memo[1][c] = max(found, key=lambda e: len(e.bases))
+            solver = memo[2][key] = max(found, key=lambda e: len(e.bases))
         bases = solver.bases[:self.DUAL_BOUND_BASES]
         if not bases:
             return None
         return np.array([bb.dvec for bb in bases]).T
 
+    def _farkas_matrix(self, c: int, bounds) -> np.ndarray | None:
+        """(m x k) the cached infeasibility certificates of the bounded test ``c``'s solver (``f @ col < 0``: no
+        solution, so the wrench is 0; exact with the solver's margin), or None."""
+        memo = getattr(self, "_dual_solvers", None)
+        if memo is None:
+            return None
+        lb, ub = (np.asarray(x, float) for x in bounds)
+        solver = memo[2].get((c, lb.tobytes(), ub.tobytes()))
+        if solver is None or not solver.farkas:
+            return None
+        return np.array(solver.farkas).T
+
     def _loglik_upper_bounds(self, F: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(len(F) x len(cols)) upper bounds of the terms ``phi_s l_s`` of candidates ``F`` (:attr:`dual_bound_reject`):
         ``l_s`` at the smallest dual bound of the wrench where that is below the measured force, else 0 (also where
-        there is no bound)."""
+        there is no bound). A test with activation bounds (:attr:`dual_bound_bounded`): its dual bounds may be
+        negative (lower activation bounds), so they are widened by the slack times the sum of their terms' sizes
+        and taken at 0 at least (the wrench is >= 0, and 0 where the bounded LP has no solution); where one of its
+        solver's cached infeasibility certificates proves that there is none, the term is its value at 0 (exact)."""
         by_col = {t["i"]: t for t in self.tests if t["phi"] > 0}
         out = np.zeros((len(F), len(cols)))
         use, mats = [], []
         for k, c in enumerate(cols):
             t = by_col.get(int(c))
-            D = None if t is None or t["bounds"] is not None else self._dual_bound_matrix(int(c))
+            D = None if t is None else self._dual_bound_matrix(int(c), t["bounds"])
             if D is not None:
-                use.append((k, t, D.shape[1]))
+                use.append((k, t, D))
                 mats.append(D)
         if not use:
             return out
         V = np.vstack([D.T for D in mats]) @ F.T            # (bases of every direction) x candidates
         s0 = 0
-        for k, t, nb in use:
-            u = V[s0:s0 + nb].min(axis=0) * (1.0 + self.DUAL_BOUND_SLACK)
+        for k, t, D in use:
+            nb = D.shape[1]
+            if t["bounds"] is None:                         # dual vectors >= 0: a relative widening
+                u = V[s0:s0 + nb].min(axis=0) * (1.0 + self.DUAL_BOUND_SLACK)
+            else:
+                u = (V[s0:s0 + nb] + self.DUAL_BOUND_SLACK * (np.abs(D).T @ F.T)).min(axis=0)
+                u = np.maximum(u, 0.0)
+                C = self._farkas_matrix(int(t["i"]), t["bounds"])
+                if C is not None:                           # proven infeasible: the wrench is 0
+                    u[(F @ C < 0).any(axis=1)] = 0.0
             s0 += nb
             out[:, k] = np.where(u < t["w_meas"], t["phi"] * self._test_loglik(u, t["w_meas"]), 0.0)
         return out
