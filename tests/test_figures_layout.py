@@ -132,6 +132,46 @@ def test_radar_direction_labels_do_not_overlap(tmp_path, figures, directions):
         assert all(n in text.replace("\n", " ").replace(" / ", " ").split() for n in members), ax.get_title()
 
 
+def _radius_labels_over_lines(fig) -> list[str]:
+    """Radius labels (y tick labels) of a radar panel whose drawn boxes a plotted line crosses (segments sampled in
+    display coordinates)."""
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    bad = []
+    for ax in fig.axes:
+        if not ax.get_visible():
+            continue
+        pts = []
+        for line in ax.lines:
+            xy = ax.transData.transform(line.get_xydata())
+            for p, q in zip(xy[:-1], xy[1:]):
+                if np.isfinite(p).all() and np.isfinite(q).all():
+                    pts.append(p + np.linspace(0, 1, 200)[:, None] * (q - p))
+        pts = np.vstack(pts)
+        for t in ax.yaxis.get_major_ticks():
+            if t.label1.get_visible() and t.label1.get_text():
+                b = t.label1.get_window_extent(r)
+                if ((pts[:, 0] >= b.x0) & (pts[:, 0] <= b.x1) & (pts[:, 1] >= b.y0) & (pts[:, 1] <= b.y1)).any():
+                    bad.append(f"{ax.get_title()}: {t.label1.get_text()}")
+    return bad
+
+
+def test_radar_radius_labels_clear_of_the_data(tmp_path, figures, directions):
+    # the radius labels (50 ... 350) were drawn at one fixed angle from the centre out, over the traces that
+    # enclose the centre (every gap radar): they go to each panel's emptiest sector, and any still over a line are
+    # blanked, the scale kept readable by at least two labels per panel
+    rng = np.random.default_rng(3)
+    meas = pd.Series(rng.uniform(80, 300, len(directions)), index=directions["name"])
+    model = meas * rng.uniform(0.6, 1.3, len(meas))
+    radar_grid_series(directions, [("measured", meas, {"color": "blue", "ls": "--"}), ("model", model, {"lw": 2})],
+                      tmp_path / "r.png", "fit", rlabel="N")
+    fig = figures[-1]
+    assert not _radius_labels_over_lines(fig), _radius_labels_over_lines(fig)
+    for ax in fig.axes:
+        shown = [t.label1.get_text() for t in ax.yaxis.get_major_ticks() if t.label1.get_text()]
+        assert len(shown) >= 2, (ax.get_title(), shown)
+
+
 def test_posteriors_legend_below_the_panels(tmp_path, figures):
     names = [f"m{i}" for i in range(8)]                    # a full grid: no free slot to hide a legend in
     f = np.linspace(0, 400, 41)

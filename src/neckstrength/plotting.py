@@ -46,7 +46,8 @@ def radar_grid_series(directions: pd.DataFrame, series: Sequence[tuple[str, pd.S
     coronal: z right / y up). A plane in which no series has values at 3 or more angles (a planar model's tests
     lie in the mid-sagittal plane; elsewhere they fall on one line) gets no panel, and the title says how many
     planes were left out; the legend sits below the panels, never over one. Directions at one angle of a plane share
-    one label, and labels that would overlap once drawn are joined, so that every direction is named legibly.
+    one label, and labels that would overlap once drawn are joined, so that every direction is named legibly. The
+    radius labels (grey) run along each panel's emptiest sector, and those that a trace still crosses are left blank.
     """
     recs = directions.to_dict("records")
     panels = []
@@ -83,8 +84,9 @@ def radar_grid_series(directions: pd.DataFrame, series: Sequence[tuple[str, pd.S
                            fontsize=7)
         ax.set_xlim(0, 2 * np.pi)
         ax.set_ylim(0, rmax)
-        ax.set_rlabel_position(250)
-        ax.tick_params(axis="y", labelsize=6)
+        ax.set_rlabel_position(np.rad2deg(_quietest_angle(th, [np.array([s.get(n, np.nan) for n in names], float)
+                                                              for _, s, _ in series])))
+        ax.tick_params(axis="y", labelsize=6, labelcolor="0.35")
         _align_labels(ax)
     for ax in axes.ravel()[len(panels):]:
         ax.set_visible(False)
@@ -104,7 +106,77 @@ def radar_grid_series(directions: pd.DataFrame, series: Sequence[tuple[str, pd.S
         if not sum(_join_overlapping_labels(ax) for ax in axes.ravel()[:len(panels)]):
             break
         fig.tight_layout(rect=rect)
+    fig.canvas.draw()
+    for ax in axes.ravel()[:len(panels)]:
+        _hide_radius_labels_over_data(ax)
     _save(fig, out)
+
+
+def _quietest_angle(th: np.ndarray, values: Sequence[np.ndarray], half_width: float = np.deg2rad(15)) -> float:
+    """The angle (radians) of the radius labels: the middle of the sector (+- ``half_width``) in which the drawn
+    lines (straight chords between the directions' points, closed, broken at missing values) come closest to the
+    centre, so that the labels sit in the panel's emptiest sector; ties go to the angle nearest 250 degrees. Only
+    angles at least 30 degrees off the horizontal are candidates, so that the labels, written horizontally along the
+    ray, stack without running into each other."""
+    pts = []
+    t = np.linspace(0, 1, 41)[:, None]
+    for v in values:
+        x, y = v * np.cos(th), v * np.sin(th)
+        a = np.c_[x, y]
+        b = np.roll(a, -1, axis=0)
+        ok = np.isfinite(a).all(1) & np.isfinite(b).all(1)
+        for p, q in zip(a[ok], b[ok]):
+            pts.append(p + t * (q - p))
+    if not pts:
+        return np.deg2rad(250)
+    pts = np.vstack(pts)
+    ang, rad = np.arctan2(pts[:, 1], pts[:, 0]), np.hypot(pts[:, 0], pts[:, 1])
+    cand = np.deg2rad(np.arange(0, 360, 5))
+    cand = cand[np.abs(np.sin(cand)) >= 0.5]       # steep enough that the labels (horizontal text) stack apart
+    near = np.abs(np.angle(np.exp(1j * (ang[None, :] - cand[:, None])))) <= half_width
+    reach = np.where(near, rad[None, :], 0).max(1)
+    off = np.abs(np.angle(np.exp(1j * (cand - np.deg2rad(250)))))
+    return float(cand[np.lexsort((off, np.round(reach, 9)))[0]])
+
+
+def _radius_label_clashes(ax) -> list:
+    """The radius (y) tick labels of a drawn polar ``ax`` whose boxes cross a plotted line."""
+    from matplotlib.path import Path as MplPath
+
+    r = ax.figure.canvas.get_renderer()
+    paths = []
+    for line in ax.lines:
+        xy = line.get_xydata()
+        ok = np.isfinite(xy).all(1)
+        runs = np.split(np.arange(len(xy)), np.flatnonzero(np.diff(ok.astype(int))) + 1)
+        paths += [line.get_transform().transform_path(MplPath(xy[i])) for i in runs if ok[i[0]] and len(i) > 1]
+    return [t for t in ax.yaxis.get_major_ticks() if t.label1.get_visible() and t.label1.get_text()
+            and any(p.intersects_bbox(t.label1.get_window_extent(r), filled=False) for p in paths)]
+
+
+def _hide_radius_labels_over_data(ax) -> None:
+    """Blank the radius labels of a drawn polar ``ax`` that sit over a plotted line (the grid circles stay), keeping
+    at least the two outermost, on a light box, where fewer would be left."""
+    bad = _radius_label_clashes(ax)
+    if not bad:
+        return
+    lo, hi = ax.get_ylim()
+    ticks = [t for t in ax.yaxis.get_major_ticks() if lo <= t.get_loc() <= hi]
+    locs = [t.get_loc() for t in ticks]
+    texts = [t.label1.get_text() if t.label1.get_visible() else "" for t in ticks]
+    keep = [bool(x) and t not in bad for x, t in zip(texts, ticks)]
+    boxed = []
+    for i in range(len(ticks) - 1, -1, -1):        # the scale stays readable: at least two labels
+        if sum(keep) >= 2:
+            break
+        if texts[i] and not keep[i]:
+            keep[i] = True
+            boxed.append(i)
+    ax.set_yticks(locs, [x if k else "" for x, k in zip(texts, keep)])
+    ax.set_ylim(lo, hi)
+    for i in boxed:
+        ax.yaxis.get_major_ticks()[i].label1.set_bbox({"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none",
+                                                       "alpha": 0.8})
 
 
 def _joined(names: Sequence[str], theta: float) -> str:
