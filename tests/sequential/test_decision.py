@@ -626,6 +626,29 @@ def test_a_study_stopped_before_its_first_normal_patient_gives_tables_and_a_figu
     assert (tmp_path / "fig.png").stat().st_size > 10_000
 
 
+def test_the_decision_figure_has_a_roc_panel_per_protocol_in_the_studys_order_and_no_legend_over_a_panel(
+        tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    from neckstrength.sequential.decision_plots import fig_decision_study
+
+    kept = []
+    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
+    runs = _fake_runs()
+    runs = pd.concat([runs.assign(protocol="forces+emg"), runs], ignore_index=True)     # rows: emg first
+    fig_decision_study(runs, reliability_table(runs, (1, 5)), (1, 5), 0.95, tmp_path / "fig.png", "two protocols")
+    fig = kept[-1]
+    fig.canvas.draw()
+    titles = [a.get_title() for a in fig.axes]
+    assert titles[:2] == ["ROC: forces (log Bayes factor)", "ROC: forces+emg (log Bayes factor)"], titles
+    legends = [a.get_legend() for a in fig.axes if a.get_legend() is not None]
+    assert len(legends) == 4
+    over = [(a.get_title(), [t.get_text() for t in leg.get_texts()][:2]) for leg in legends for a in fig.axes
+            if leg.get_window_extent().overlaps(a.get_window_extent())]
+    assert not over, over
+    plt.close(fig)
+
+
 def test_a_study_in_alternating_order_gives_each_patient_the_rows_it_gets_alone(p2m7):
     """Every patient draws from its own index's streams: the study's run order (deficit and normal alternating)
     leaves each patient's rows as when that patient runs alone (how the pipeline runs them)."""

@@ -13,22 +13,27 @@ def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoint
                        path: str | Path, title: str) -> None:
     """A row of ROC panels, one per protocol (the score after each checkpoint: log BF, Algorithm 4's -log f_c
     ratio), above the reliability diagram (mean printed P against the share with the deficit, 95% intervals) and
-    the median P(deficit) by test with quartiles, deficit vs normal participants. Legends sit beside the panels,
+    the median P(deficit) by test with quartiles, deficit vs normal participants. Legends sit below the panels,
     not over the data."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from neckstrength.sequential.decision_study import _with_p, missing_kind, roc_curve
+    from neckstrength.sequential.decision_study import PROTOCOLS, _with_p, missing_kind, roc_curve
 
-    protocols = list(dict.fromkeys(runs["protocol"]))
-    styles = ["-", "--", ":", "-."]
-    n_top = max(2, len(protocols))
-    fig = plt.figure(figsize=(max(16, 4.2 * n_top), 10), constrained_layout=True)
-    gs = fig.add_gridspec(2, 2 * n_top)
+    def ordered(names):                           # the study's order of protocols (forces first), not the rows'
+        names = list(dict.fromkeys(names))
+        return sorted(names, key=lambda p: PROTOCOLS.index(p) if p in PROTOCOLS else len(PROTOCOLS))
+
+    protocols = ordered(runs["protocol"])
+    styles = ["-", "--", ":", "-.", (0, (5, 1, 1, 1, 1, 1))]
+    n_top = len(protocols)
+    fig = plt.figure(figsize=(max(14, 4.4 * n_top), 11), constrained_layout=True)
+    gs = fig.add_gridspec(2, 1, height_ratios=[1, 1.25])
+    top, bottom = gs[0].subgridspec(1, n_top), gs[1].subgridspec(1, 2)
     for pi, protocol in enumerate(protocols):
-        a = fig.add_subplot(gs[0, 2 * pi:2 * pi + 2])
+        a = fig.add_subplot(top[0, pi])
         for ci, t in enumerate(checkpoints):
             c = roc_curve(runs, protocol, t)
             if c["sensitivity"].isna().all() or len(c) <= 2:
@@ -47,10 +52,10 @@ def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoint
         a.set_xlim(0, 1)
         a.set_ylim(0, 1.02)
         if not note:
-            a.legend(fontsize=7, loc="lower right")
+            a.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=4)  # below the panel
     runs = _with_p(runs)
-    protocols = list(dict.fromkeys(runs["protocol"]))
-    ax = [None, fig.add_subplot(gs[1, :n_top]), fig.add_subplot(gs[1, n_top:])]
+    protocols = ordered(runs["protocol"])
+    ax = [None, fig.add_subplot(bottom[0, 0]), fig.add_subplot(bottom[0, 1])]
     a = ax[1]
     for pi, (protocol, g) in enumerate(reliability.groupby("protocol", sort=False)):
         x = g["mean_p_deficit"].to_numpy(float)
@@ -63,7 +68,7 @@ def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoint
     a.set_title(f"reliability, after {', '.join(map(str, checkpoints))} tests pooled")
     a.set_xlim(-0.02, 1.02)
     a.set_ylim(-0.02, 1.02)
-    a.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    a.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2)      # below the panel
     a = ax[2]
     for pi, protocol in enumerate(protocols):
         for kind, color in (("deficit", "C3"), ("normal", "C0")):
@@ -80,7 +85,7 @@ def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoint
     a.set_ylabel("model's P(deficit) (quartiles shaded, first protocol)")
     a.set_title("P(deficit) by test")
     a.set_ylim(-0.02, 1.02)
-    a.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    a.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2)      # below the panel
     fig.suptitle(title, fontsize=10)
     fig.savefig(path, dpi=110)
     plt.close(fig)
