@@ -20,6 +20,7 @@ Run from the repository root::
     .venv/bin/python benchmarks/bench_gap.py --dataset S005 --reference --out bench_gap.json
     .venv/bin/python benchmarks/bench_gap.py --workers 2 --fused     # the fused pass against the per-direction solver
     .venv/bin/python benchmarks/bench_gap.py --fused --only-calibrated --out bench_gap_cal.json
+    .venv/bin/python benchmarks/bench_gap.py --staged --only-calibrated --workers 2   # against the one-stage screen
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ from dataclasses import replace
 
 
 def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: bool, effects=None,
-        workers: int = 1, fused: bool = False, only_calibrated: bool = False) -> dict:
+        workers: int = 1, fused: bool = False, only_calibrated: bool = False, staged: bool = False) -> dict:
+    import neckstrength.gap.calibrate as calmod
     import neckstrength.gap.fit as fitmod
     from neckstrength.config import build_directions, diagnosis_settings, gap_blind_dataset, gap_context, load_config
     from neckstrength.gap.diagnose import diagnose
@@ -56,10 +58,14 @@ def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: boo
         runs.append(("calibrated", s))
     if fused:      # the reference (per-direction solver) first: its caches and compilation cannot favour the pass
         runs = [(tag + "_per_direction", st) for tag, st in runs] + runs
+    if staged:     # the reference first: power with the null in one screen, sensitivity with `replicates` each
+        runs = [(tag + "_one_stage", replace(st, calibration=replace(st.calibration, sensitivity_replicates=None)))
+                for tag, st in runs if tag == "calibrated"] + runs
     default = fitmod.FUSED_SOLVER
     _warm_up(ctx)
     for tag, st in runs:
         fitmod.FUSED_SOLVER = not tag.endswith("_per_direction")
+        calmod.POWER_IN_TWO_STAGES = not tag.endswith("_one_stage")
         t0, c0, l0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
         k0 = os.times().children_user + os.times().children_system
         stages = []
@@ -74,11 +80,31 @@ def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: boo
                     "load_before": l0, "load_after": os.getloadavg()[0], "decision": d.summary.get("decision"),
                     "gap_before": d.summary["gap_before"], "gap_after": d.summary["gap_after"], "stages": stages,
                     "summary": {k: v for k, v in d.summary.items() if isinstance(v, (str, int, float, bool))},
-                    "ranking": d.effects[["candidate", "gap_cv"]].to_dict("list")}
+                    "ranking": d.effects[["candidate", "gap_cv"]].to_dict("list"),
+                    "power": d.power.to_dict("list") if len(d.power) else {},
+                    "sensitivity": d.summary.get("sensitivity", [])}
         print(f"{tag}: {out[tag]['wall_s']:.0f} s wall, {out[tag]['cpu_s']:.0f} s CPU (+ "
               f"{out[tag]['cpu_workers_s']:.0f} s in worker processes), load "
               f"{l0:.1f} -> {out[tag]['load_after']:.1f}: {d.summary.get('decision')}", flush=True)
     fitmod.FUSED_SOLVER = default
+    calmod.POWER_IN_TWO_STAGES = True
+    if staged and "calibrated_one_stage" in out:
+        a, b = out["calibrated"], out["calibrated_one_stage"]
+        cpu_a, cpu_b = a["cpu_s"] + a["cpu_workers_s"], b["cpu_s"] + b["cpu_workers_s"]
+        import pandas as pd
+
+        same_power = pd.DataFrame(a["power"]).equals(pd.DataFrame(b["power"]))      # NaN where no replicate
+        diffs = _differences(a, b) + ([] if same_power else ["power table"])
+        out["staged_ratio_cpu"], out["staged_differences"] = cpu_b / cpu_a, diffs
+        print(f"calibrated: power in two stages, sensitivity {a['sensitivity'][0].get('replicates')} replicates "
+              f"per end: {cpu_a:.1f} s CPU ({a['wall_s']:.0f} s wall) vs one screen, sensitivity as the null: "
+              f"{cpu_b:.1f} s CPU ({b['wall_s']:.0f} s wall): {cpu_b / cpu_a:.2f}x less CPU, "
+              f"{b['wall_s'] / a['wall_s']:.2f}x less wall; "
+              f"{'decision, summary, ranking and power table equal to 1e-6' if not diffs else 'DIFFERENT: ' + '; '.join(diffs[:5])}"
+              "; sensitivity rows: " + "; ".join(f"{r['noise']}: {r['named']} p {r['p_value']:.3g}"
+                                                  for r in a["sensitivity"]) + " (vs "
+              + "; ".join(f"{r['noise']}: {r['named']} p {r['p_value']:.3g}" for r in b["sensitivity"]) + ")",
+              flush=True)
     if fused:
         for tag, _ in runs:
             if tag.endswith("_per_direction"):
@@ -146,9 +172,13 @@ def main() -> None:
                     help="also time every run with the per-direction solver (gap.fit.FUSED_SOLVER = False), the "
                          "reference")
     ap.add_argument("--only-calibrated", action="store_true", help="time the calibrated diagnosis only")
+    ap.add_argument("--staged", action="store_true",
+                    help="also time the calibrated diagnosis as before 2026-11-28 (the reference: power replicates "
+                         "in the null's screen, gap.calibration.POWER_IN_TWO_STAGES = False; sensitivity with "
+                         "`replicates` per end)")
     a = ap.parse_args()
     res = run(a.config, a.model, a.dataset, a.reference, not a.no_calibration,
-              a.effects.split(",") if a.effects else None, a.workers, a.fused, a.only_calibrated)
+              a.effects.split(",") if a.effects else None, a.workers, a.fused, a.only_calibrated, a.staged)
     if a.out:
         with open(a.out, "w") as fh:
             json.dump(res, fh, indent=2)

@@ -367,6 +367,12 @@ def remainder_verdict(rem: dict, cal: "Calibration", alpha: float, where: str) -
     return "the remaining held-out gap is consistent with noise", False
 
 
+#: The power replicates screened after the null in two stages (:func:`_power_hits`); False: with the null, every
+#: effect at once (before 2026-11-28; the same power table at about 1.5x the screen's CPU), kept as the reference
+#: of ``benchmarks/bench_gap.py --staged``.
+POWER_IN_TWO_STAGES = True
+
+
 def sensitivity_replicates(cs: CalibrationSettings) -> int:
     """Noise-only replicates at each end of the noise's range (``cs.sensitivity_replicates``, default
     ``cs.replicates``)."""
@@ -489,6 +495,8 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
     ps, pm = [], []
     if cs.power_replicates > 0:      # screened after the null, in two stages (:func:`_power_hits`)
         ps, pm = _power_sets(ctx, names, phis, f_fit, [sg.sigma for sg in sig], [list(effects)] * nd, cs, s.seed)
+        if not POWER_IN_TWO_STAGES:  # the reference: screened with the null, every effect at once
+            sims, meta, ps = sims + ps, meta + pm, []
     for i, n in enumerate(names):                          # the measured data sets, screened alike
         sims.append(BlindData(n, T[i]))
         meta.append((i, "observed", "", 0.0))
@@ -523,8 +531,10 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
         cal.noise = sig[i]
         cal.sensitivity = [(lab, null_cal(i, f"null_{lab}", sg, f"{sig[i].source} {lab}", jo))
                            for lab, sg in sens[i]]
+        if cs.power_replicates > 0 and not POWER_IN_TWO_STAGES:
+            cal.power = _power_table(cal, i, effects, cs, meta, sc.gap)
         out.append(cal)
-    if cs.power_replicates > 0:
+    if cs.power_replicates > 0 and POWER_IN_TWO_STAGES:
         pm_ok = [m for m in pm if m[1] != "skip"]
         hits = _power_hits(ctx, ps, [(m[0], m[2]) for m in pm_ok], folds, out, {e.name: e for e in effects},
                            effects, s, say, workers, checkpoints)
