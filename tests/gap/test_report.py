@@ -2,6 +2,8 @@
 ranking relates to it, labels each 'where' with what it is computed from, and draws no empty activation panel.
 Checked on hand-made diagnoses (no fitting), so each statement's trigger is known."""
 
+import re
+from pathlib import Path
 from types import SimpleNamespace
 
 import matplotlib.pyplot as plt
@@ -138,15 +140,32 @@ def _write(diag, directions, out, a3=None):
     return (out / "report.md").read_text()
 
 
-def test_no_activation_data_gives_the_prediction_or_no_figure(directions, tmp_path, kept):
+def _declared_outputs(rule: str) -> list[str]:
+    """The output names of ``rule`` in workflow/rules/gap.smk."""
+    text = (Path(__file__).resolve().parents[2] / "workflow" / "rules" / "gap.smk").read_text()
+    block = text.split(f"rule {rule}:", 1)[1].split("    output:", 1)[1]
+    block = re.split(r"\n    \w+:", block, maxsplit=1)[0]
+    return re.findall(r"^        (\w+)=", block, flags=re.M)
+
+
+def test_no_activation_data_gives_the_prediction_of_the_groups_or_of_the_muscles(directions, tmp_path, kept):
     # without Table A.3 the activation figure shows the model's prediction (two curves with values), not a text
     # placeholder, and the report links it under its own heading
     text = _write(_diagnosis(directions), directions, tmp_path / "pred")
     fig = next(f for f in kept if f._suptitle is None and "Predicted activation" in f.axes[0].get_title())
     lines = [ln for ln in fig.axes[0].get_lines() if np.isfinite(ln.get_ydata()).any()]
     assert len(lines) == 2 and fig.axes[0].get_xlabel() and fig.axes[0].get_ylabel()
-    assert "## Predicted activation" in text and "![activation](fig_activation.png)" in text
-    # nothing to show (no EMG-recorded group): no figure, no link
-    text = _write(_diagnosis(directions, activations=False), directions, tmp_path / "none")
-    assert not (tmp_path / "none" / "fig_activation.png").exists() and "fig_activation" not in text
-    assert (tmp_path / "none" / "fig_radar.png").exists()
+    assert "## Predicted activation\n" in text and "![activation](fig_activation.png)" in text
+    # no EMG-recorded group either: every figure the pipeline rule declares is still written (the rule failed on
+    # a missing fig_activation.png), the activation figure showing each muscle group's mean predicted activation
+    declared = [k for k in _declared_outputs("gap_diagnose") if k.startswith("fig_")]
+    assert "fig_activation" in declared and "fig_radar" in declared
+    out = tmp_path / "none"
+    text = _write(_diagnosis(directions, activations=False), directions, out)
+    assert all((out / f"{k}.png").exists() for k in declared), [k for k in declared if not (out / f"{k}.png").exists()]
+    fig = next(f for f in kept if "by muscle group" in f.axes[0].get_title())
+    heights = [b.get_height() for b in fig.axes[0].patches]
+    assert np.allclose(heights, 3.0 / len(directions))      # activation_sum / directions, per group
+    assert [t.get_text() for t in fig.axes[0].get_xticklabels()] == ["SCM-R", "SCM-L"]
+    assert fig.axes[0].get_xlabel() and fig.axes[0].get_ylabel()
+    assert "## Predicted activation by muscle group" in text and "![activation](fig_activation.png)" in text

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Mapping
 
@@ -145,8 +146,10 @@ def _where_lines(diag: DatasetDiagnosis) -> list[str]:
 def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping[str, str | Path],
                   a3: np.ndarray | None = None) -> set[str]:
     """``out`` keys: radar, where, effects, activation. The activation figure shows Table A.3 (``a3``) against the
-    model's predicted activation, or without ``a3`` the prediction alone; it is not written when there is neither
-    (no EMG-recorded group), so that no figure is an empty panel. Returns the keys of the figures written."""
+    model's predicted activation of the EMG-recorded groups, or without ``a3`` that prediction alone; for a model
+    without EMG-recorded groups and no ``a3`` it shows the mean activation of each model muscle group over the test
+    directions (base model, all-direction fit: ``diag.muscles``), so that every figure requested is written (the
+    pipeline rule declares it) and none is an empty panel. Returns the keys of the figures written."""
     r = diag.residuals.set_index("direction")
     chosen = diag.summary["chosen"]
     d = directions.set_index("name").loc[r.index].reset_index()
@@ -235,7 +238,10 @@ def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping
     written = {k for k in ("radar", "where", "effects") if k in out}
     series = [(c, kw) for c, kw in (("none", {"color": "black"}), (chosen, {"color": "red"}))
               if c in diag.activations and np.isfinite(diag.activations[c]).any()]
-    if "activation" in out and (a3 is not None or series):
+    if "activation" in out and a3 is None and not series:
+        _group_activation_figure(diag, out["activation"])
+        written.add("activation")
+    elif "activation" in out:
         fig, axa = plt.subplots(figsize=(12, 5))
         if a3 is not None:
             axa.plot(x, a3, "b--o", label="Table A.3 (measured, normalised)")
@@ -254,6 +260,30 @@ def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping
         _save(fig, out["activation"])
         written.add("activation")
     return written
+
+
+def has_emg_prediction(diag: DatasetDiagnosis) -> bool:
+    """Whether the diagnosis predicts the activation of EMG-recorded groups (the model has such groups)."""
+    return any(np.isfinite(np.asarray(v, float)).any() for v in diag.activations.values())
+
+
+def _group_activation_figure(diag: DatasetDiagnosis, out) -> None:
+    """The activation figure of a model without EMG-recorded groups and without measured activation: each model
+    muscle group's mean activation over the test directions at the base model's fitted maxima."""
+    mu = diag.muscles
+    k = len(diag.residuals)
+    fig, axa = plt.subplots(figsize=(max(6.0, 0.35 * len(mu) + 2), 5))
+    axa.bar(np.arange(len(mu)), mu["activation_sum"].to_numpy(float) / k, color="black")
+    axa.set_xticks(np.arange(len(mu)))
+    axa.set_xticklabels(mu["muscle"], rotation=80, fontsize=7)
+    axa.set_ylim(0, 1.05)
+    axa.set_xlabel("model muscle group")
+    axa.set_ylabel(f"mean activation over the {k} test directions (0-1)")
+    title = (f"Predicted activation by muscle group: {diag.name} (base model at its fitted maxima; no EMG-recorded "
+             "group and no measured activation)")
+    axa.set_title(textwrap.fill(title, 90, break_on_hyphens=False), fontsize=10)
+    fig.tight_layout()
+    _save(fig, out)
 
 
 def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
@@ -445,6 +475,13 @@ def write_report(diag: DatasetDiagnosis, path: str | Path, figures: Mapping[str,
                   markdown_table(act), ""]
         if "activation" in figures:
             lines += [f"![activation]({figures['activation']})", ""]
+    elif "activation" in figures and not has_emg_prediction(diag):
+        lines += ["## Predicted activation by muscle group", "",
+                  "No measured activation for this data set and no EMG-recorded group in this model. The figure "
+                  "shows each model muscle group's mean activation over the test directions at the base model's "
+                  "fitted maxima (the activation sums of 'Where: by active muscle group' over the directions): what "
+                  "EMG of a group would show on average if the model is right.", "",
+                  f"![activation]({figures['activation']})", ""]
     elif "activation" in figures:
         lines += ["## Predicted activation", "",
                   "No measured activation for this data set. The figure shows the model's mean activation of the "

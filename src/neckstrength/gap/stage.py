@@ -164,9 +164,9 @@ def run_diagnose(settings: DiagnoseSettings, inputs: DiagnoseInputs, resume_dir:
 def write_diagnose(result: DiagnoseResult, outputs: Mapping[str, str | Path]) -> None:
     """Write the tables, figures, ``report.md`` and ``summary.json`` of :func:`run_diagnose` (keys of ``outputs``:
     :data:`DATASET_FILES`, ``fig_<name>`` for :data:`FIGURES`, 'summary', 'report'; optional 'protocols' and
-    'update'). Keys not in ``outputs`` are not written, nor the activation figure where there is nothing to show (no
-    Table A.3 and no EMG-recorded group: :func:`neckstrength.gap.report.write_figures`); the report links the figures
-    written."""
+    'update'). Keys not in ``outputs`` are not written; every figure in ``outputs`` is (the activation figure of a
+    model without EMG-recorded groups and without Table A.3 shows its muscle groups' predicted activation:
+    :func:`neckstrength.gap.report.write_figures`); the report links the figures written."""
     inp, diag = result.inputs, result.diagnosis
     if result.update is not None and "update" in outputs:
         hdr_u = f"extra trials {inp.extra_trials}: posterior of the top candidates (docs/gap_diagnosis.md)"
