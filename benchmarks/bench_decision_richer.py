@@ -36,7 +36,7 @@ def main() -> int:
                                      full_model_from_config, joint_settings, load_config, model_from_config)
     from neckstrength.estimation.datasets import model_directions_table
     from neckstrength.gap.forked import fork_map
-    from neckstrength.gap.truths import CaseSettings, TruthSetup, _Forces, draw_params, make_forces
+    from neckstrength.gap.truths import CaseSettings, TruthForces, TruthSetup, draw_params, make_forces
     from neckstrength.sequential.cohort import simulate_participant
     from neckstrength.sequential.decision import DeficitDecision
     from neckstrength.sequential.decision_study import _auc
@@ -78,7 +78,7 @@ def main() -> int:
                                                   derive_rng(seed, "decision/s3m24/truth", i), cache=BasisCache())
         gidx = dec_s.group_indices(model.muscle_names)
         ratio = float(f[gidx].sum() / f0[gidx].sum())
-        fc = _Forces(setup)
+        fc = TruthForces(setup)
         rows = []
         for truth in a.truths:
             rng = derive_rng(seed, f"bench_decision_richer/{truth}", i)

@@ -47,7 +47,7 @@ def main(argv=None) -> dict:
     ctx = gap_context(cfg, model, build_directions(cfg))
     setup = T.TruthSetup(ctx.full, ctx.model, ctx.directions, ctx.head_centre, ctx.tie_sides,
                          load_posture_tables(cfg["data"]["model_dir"]))
-    fc = T._Forces(setup)
+    fc = T.TruthForces(setup)
     m, full = setup.model, setup.full
     rng = np.random.default_rng(a.seed)
     s = T.CaseSettings()

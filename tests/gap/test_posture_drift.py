@@ -13,7 +13,7 @@ import neckstrength.gap.diagnose as dg
 from neckstrength.estimation.parameters import free_parameters
 from neckstrength.gap.effects import EFFECTS, POSTURE_AXES, base_instance, compose
 from neckstrength.gap.fit import FitSettings, Simulator
-from neckstrength.gap.truths import TruthSetup, _Forces, make_forces
+from neckstrength.gap.truths import TruthForces, TruthSetup, make_forces
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -59,7 +59,7 @@ def test_diagnosis_names_a_drift_made_by_the_truth_generator(ctx_s3):
     the calibrated rate of such a decision is the benchmark's, docs/gap_diagnosis.md.)"""
     ctx = ctx_s3
     setup = TruthSetup(ctx.full, ctx.model, ctx.directions, ctx.head_centre, ctx.tie_sides, dict(ctx.postures))
-    fc = _Forces(setup)
+    fc = TruthForces(setup)
     rng = np.random.default_rng(32)
     pidx, _ = free_parameters(ctx.model, ctx.tie_sides)
     f = ctx.model.strengths * np.exp(rng.normal(0, 0.2, int(pidx.max()) + 1))[pidx]

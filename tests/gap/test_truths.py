@@ -42,7 +42,7 @@ def test_truths_do_not_use_the_diagnosis_and_the_diagnosis_does_not_see_them():
 
 
 def test_neutral_truths_reproduce_the_base_model(setup):
-    fc = T._Forces(setup)
+    fc = T.TruthForces(setup)
     f = setup.model.strengths * np.exp(np.random.default_rng(0).normal(0, 0.3, setup.model.m))
     base = fc.base(f)
     # the direction table's convention: w(u) / force_scale with u the table's unit wrench
@@ -62,7 +62,7 @@ def test_neutral_truths_reproduce_the_base_model(setup):
 
 
 def test_direction_error_pushes_within_the_cone_and_takes_the_true_maximum(setup):
-    fc = T._Forces(setup)
+    fc = T.TruthForces(setup)
     rng = np.random.default_rng(3)
     s = T.CaseSettings(cone_deg=(12.0, 12.0))
     p = T.draw_params(setup, "direction_error", s, rng, fc)

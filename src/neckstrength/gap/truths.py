@@ -139,8 +139,10 @@ def pooled_log_sd(trials: np.ndarray, level: float = 0.95) -> tuple[float, int, 
     return s, int(df), s * float(np.sqrt(df / chi2.ppf(1 - a, df))), s * float(np.sqrt(df / chi2.ppf(a, df)))
 
 
-class _Forces:
-    """Max force (N) of the individual along each test under a (possibly changed) model and geometry."""
+class TruthForces:
+    """Max force (N) of the individual along each test under a (possibly changed) model and geometry: the truths' own
+    max-wrench evaluation (:func:`make_forces`, :func:`draw_params`), with a basis cache, so one instance per
+    :class:`TruthSetup` serves many cases."""
 
     def __init__(self, setup: TruthSetup):
         self.s = setup
@@ -218,10 +220,10 @@ def drift_weights(JT_row_axes: Sequence[str], tau: np.ndarray, drift_deg: float)
     return w
 
 
-def make_forces(setup: TruthSetup, truth: str, f: np.ndarray, params: dict, fc: _Forces | None = None,
+def make_forces(setup: TruthSetup, truth: str, f: np.ndarray, params: dict, fc: TruthForces | None = None,
                 element_f: np.ndarray | None = None) -> np.ndarray:
     """Noiseless max force (N) per test of the individual with group strengths ``f`` under ``truth``."""
-    fc = fc or _Forces(setup)
+    fc = fc or TruthForces(setup)
     model, full = setup.model, setup.full
     if truth == "none":
         return fc.base(f)
@@ -285,7 +287,7 @@ def _unit(rng: np.random.Generator, planar: bool) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def draw_params(setup: TruthSetup, truth: str, s: CaseSettings, rng: np.random.Generator, fc: _Forces) -> dict:
+def draw_params(setup: TruthSetup, truth: str, s: CaseSettings, rng: np.random.Generator, fc: TruthForces) -> dict:
     """The case's effect parameters (JSON-friendly, arrays as lists)."""
     planar = setup.model.planar
     if truth in CONTROLS:
@@ -343,7 +345,7 @@ def generate_truth_cases(setup: TruthSetup, s: CaseSettings, rng: np.random.Gene
     if unknown:
         raise ValueError(f"unknown truths {unknown}; one of {', '.join(EFFECT_TRUTHS)}")
     model = setup.model
-    fc = _Forces(setup)
+    fc = TruthForces(setup)
     # free strength factors: one per group, or per base group where the fit ties the sides
     base = [n[:-2] if (setup.tie_sides and n.endswith(("-R", "-L"))) else n for n in model.muscle_names]
     free = list(dict.fromkeys(base))
