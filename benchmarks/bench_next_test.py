@@ -46,6 +46,10 @@ def main(argv=None) -> int:
     ap.add_argument("--no-emg", action="store_true", help="update without the simulated EMG bounds (as for the "
                     "participants): Algorithm 8 then reuses the general data set instead of re-simulating N_F "
                     "candidates with the bounds")
+    ap.add_argument("--check-subsample-seed", type=int, default=0,
+                    help="seed of the fast-vs-exact check's 20,000-candidate subsample")
+    ap.add_argument("--check-propose-seed", type=int, default=1,
+                    help="seed of the check's two proposals (the same for both)")
     ap.add_argument("--json", default=None, help="write the numbers here")
     args = ap.parse_args(argv)
 
@@ -83,6 +87,8 @@ def main(argv=None) -> int:
         sim.save(cache)
         precompute = {"computed_s": time.perf_counter() - t0, **sim.meta}
     print(f"precompute: {json.dumps(precompute, default=float)}")
+    print(f"seeds: candidates, session and its proposals {cfg['seed']} (config); check subsample "
+          f"{args.check_subsample_seed}, check proposals {args.check_propose_seed}")
 
     st = sq.SequentialState(model, sim, data.force_scale, s, seed=cfg["seed"])
     rng = np.random.default_rng(cfg["seed"])
@@ -105,18 +111,20 @@ def main(argv=None) -> int:
         print(row, flush=True)
 
     # check: fast vs per-candidate Algorithm 9 on a 20,000-candidate subsample of the same set
-    sub = np.random.default_rng(0).choice(sim.N, 20000, replace=False)
+    sub = np.random.default_rng(args.check_subsample_seed).choice(sim.N, 20000, replace=False)
     small, = sq.SimulatedSet.build(model, data.directions, data.U, F[sub], [grid], s.n_wbins, keep_alpha=True,
                                    n_threads=args.threads)
     st_small = sq.SequentialState(model, small, data.force_scale, s)
-    fast = st_small.propose(np.random.default_rng(1))
-    exact = st_small.propose(np.random.default_rng(1), exact=True)
+    fast = st_small.propose(np.random.default_rng(args.check_propose_seed))
+    exact = st_small.propose(np.random.default_rng(args.check_propose_seed), exact=True)
     check = {"max_abs_dS_diff": float(np.abs(fast.dS - exact.dS).max()),
              "max_dS": float(np.abs(exact.dS).max()), "same_choice": fast.choice == exact.choice}
     print(f"fast vs exact Algorithm 9 (20,000-candidate subsample): {check}")
     out = {"model": args.model, "dataset": args.dataset, "emg_bounds_in_update": not args.no_emg, "n_candidates": s.n_candidates, "n_sim": s.n_sim,
            "n_bins": s.n_bins, "n_wbins": s.n_wbins, "directions": sim.K, "muscles": sim.m, "precompute": precompute,
-           "steps": rows, "fast_vs_exact": check, "cpu": platform.processor() or platform.machine(),
+           "seed": cfg["seed"], "check_subsample_seed": args.check_subsample_seed,
+           "check_propose_seed": args.check_propose_seed, "steps": rows, "fast_vs_exact": check,
+           "cpu": platform.processor() or platform.machine(),
            "cpus": os.cpu_count(), "load_average_1_5_15": os.getloadavg(),
            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
     print(f"peak RSS {out['peak_rss_mb']:.0f} MB on {out['cpus']} CPUs (load average {os.getloadavg()}: other "
