@@ -209,6 +209,12 @@ def main(argv=None) -> dict:
                           "batch_cases": len(part)})
                 if c.name in pw:
                     r["power_detectable"] = pw[c.name]
+                cal = d.calibration
+                if cal is not None:       # the decision's inputs: other selection rules can be scored offline
+                    r["decision_inputs"] = {"effects": list(cal.effects), "gap_obs": list(map(float, cal.gap_obs)),
+                                            "mu": list(map(float, cal.mu)), "sd": list(map(float, cal.sd)),
+                                            "t_null": list(map(float, cal.t_null)),
+                                            "rms_obs": None if cal.rms_obs is None else list(map(float, cal.rms_obs))}
                 rows.append(r)
                 fh.write(json.dumps(r, default=float) + "\n")
         say(f"batch of {len(part)} ({part[0].name}-{part[-1].name}): {wall:.0f} s wall, "

@@ -164,6 +164,9 @@ def test_reduced_benchmark_runs_end_to_end(tmp_path):
     rows = [json.loads(x) for x in (out / "rows.jsonl").read_text().splitlines()]
     assert [x["truth"] for x in rows] == ["none", "rich96", "direction_error"]
     assert all(x["noise_source"] == "repeats" for x in rows)
+    for x in rows:                     # the decision's inputs, for scoring other selection rules offline
+        di = x["decision_inputs"]
+        assert len(di["gap_obs"]) == 1 + len(di["effects"]) == 1 + len(di["mu"]) and len(di["t_null"]) == 3
     tab = pd.read_csv(out / "scores.csv")
     assert tab["group"].str.contains("false alarm").any()
     r2 = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
