@@ -452,6 +452,9 @@ def calibration_settings(config: Mapping) -> CalibrationSettings:
     if isinstance(noise, bool) or not (isinstance(noise, (int, float)) and noise > 0
                                        or noise in ("auto", "repeats", "prior", "heldout")):
         raise ValueError(f"gap.calibration.noise: auto, repeats, prior, heldout or a positive log SD, not {noise!r}")
+    selection = str(c.get("selection", "max_z"))
+    if selection not in ("max_z", "largest_improvement"):
+        raise ValueError(f"gap.calibration.selection: max_z or largest_improvement, not {selection!r}")
     null = str(c.get("null_truth", "base"))
     if null not in ("base", "elements"):
         raise ValueError(f"gap.calibration.null_truth: base or elements, not {null!r}")
@@ -480,7 +483,7 @@ def calibration_settings(config: Mapping) -> CalibrationSettings:
                                strength_spread=float(c.get("strength_spread", 0.3)),
                                starts=int(c.get("starts", 1)), max_iter=int(c.get("max_iter", 15)),
                                cv=str(c.get("cv", "refit")), cv_steps=int(c.get("cv_steps", 1)),
-                               null_truth=null, element_spread=spread)
+                               null_truth=null, element_spread=spread, selection=selection)
 
 
 def benchmark_settings(config: Mapping) -> BenchmarkSettings:

@@ -532,3 +532,31 @@ def test_calibration_settings_noise_from_the_config(tmp_path):
             calibration_settings({"gap": {"calibration": {"noise": bad}}})
     with pytest.raises(ValueError, match="noise_prior"):
         calibration_settings({"gap": {"calibration": {"noise_prior": {"low": 0.2, "central": 0.1}}}})
+
+
+def test_selection_names_the_largest_improvement_among_significant_effects_and_alarms_alike():
+    # three effects: 'a' has the largest standardised improvement (small null SD), 'b' the largest improvement of
+    # the held-out gap and passes the maxT test on its own, 'c' improves most of all but does not pass it
+    rng = np.random.default_rng(0)
+    R, E = 19, ["a", "b", "c"]
+    mu, sd = np.zeros(3), np.array([0.001, 0.004, 0.05])
+    delta_null = rng.normal(0.0, 1.0, (R, 3)) * sd
+    t_null = ((delta_null - mu) / sd).max(axis=1)
+    mk = lambda sel: cb.Calibration(0.05, "prior", E, delta_null, mu, sd, t_null, np.zeros((R, 4)),  # noqa: E731
+                                    np.zeros((R, 4)), pd.DataFrame(), np.zeros(4), np.zeros(4), selection=sel)
+    gap = np.array([0.10, 0.09, 0.07, 0.05])            # improvements 0.01, 0.03, 0.05: z 10, 7.5, 1
+    dz, dl = mk("max_z").decide(gap), mk("largest_improvement").decide(gap)
+    assert dz["best"] == "a" and dl["best"] == "b" and dl["best_z"] == "a"
+    assert dz["p_adjusted"] <= 0.05 and dl["p_adjusted"] <= 0.05
+    # nothing passes: both name the same best-z effect with the same p (so the same false alarms)
+    small = np.array([0.10, 0.0999, 0.0998, 0.05])
+    assert mk("max_z").decide(small)["p_adjusted"] > 0.05
+    assert mk("largest_improvement").decide(small)["best"] == mk("max_z").decide(small)["best"]
+    with pytest.raises(ValueError, match="selection"):
+        mk("biggest").decide(gap)
+    from neckstrength.config import calibration_settings
+
+    assert calibration_settings({"gap": {"calibration": {"selection": "largest_improvement"}}}).selection == \
+        "largest_improvement"
+    with pytest.raises(ValueError, match="gap.calibration.selection"):
+        calibration_settings({"gap": {"calibration": {"selection": "max"}}})

@@ -182,15 +182,32 @@ class Calibration:
     sensitivity: list = None            # [(label, Calibration at the range's end)], without power
     null: str = "base"                  # where the null's truths come from (NULL_TRUTHS)
     null_note: str = ""                 # the report's sentence about it (NULL_NOTES)
+    selection: str = "max_z"            # which significant effect is named (SELECTIONS)
+    alpha: float = 0.05                 # the level at which an effect counts as significant for ``selection``
 
     def decide(self, gap: np.ndarray) -> dict:
-        """``gap``: held-out gaps ('none' first, then the effects in ``effects`` order) of one data set."""
+        """``gap``: held-out gaps ('none' first, then the effects in ``effects`` order) of one data set.
+
+        The maxT test: some effect is named when the largest standardised improvement z has adjusted p <= alpha.
+        Which one (``selection``): 'max_z', that effect; 'largest_improvement', among the effects whose own z
+        passes the same test (adjusted p <= ``alpha``) with a positive improvement, the one with the largest
+        improvement of the held-out gap (the cross-validated fit decides, as the ranking does). Whether an effect
+        is named, and so the false-alarm rate, is the same under both. 'p_adjusted': the named (or best) effect's
+        own adjusted p-value."""
         delta = gap[0] - gap[1:]
         z, best, t, p_adj = maxt(delta[None], self.mu, self.sd, self.t_null)
         R = len(self.delta_null)
         p_raw = (1 + (self.delta_null >= delta[None] - 1e-12).sum(axis=0)) / (R + 1)
-        return {"delta": delta, "z": z[0], "best": self.effects[int(best[0])], "T": float(t[0]),
-                "p_adjusted": float(p_adj[0]), "p_raw": p_raw}
+        b = int(best[0])
+        p_each = (1 + (self.t_null[None, :] >= z[0][:, None] - 1e-12).sum(axis=1)) / (len(self.t_null) + 1)
+        if self.selection == "largest_improvement":
+            ok = np.flatnonzero((p_each <= self.alpha) & (delta > 0))
+            if ok.size:
+                b = int(ok[np.argmax(delta[ok])])
+        elif self.selection != "max_z":
+            raise ValueError(f"gap.calibration.selection: one of {', '.join(SELECTIONS)}, not {self.selection!r}")
+        return {"delta": delta, "z": z[0], "best": self.effects[b], "T": float(t[0]),
+                "p_adjusted": float(p_each[b]), "p_raw": p_raw, "best_z": self.effects[int(best[0])]}
 
     def remainder(self, j: int, gap: float, structure: float) -> dict:
         """Tests of candidate ``j`` (0 = none)'s remaining held-out gap against the same null."""
@@ -200,6 +217,10 @@ class Calibration:
             else np.nan
         return {"p_structure": float(p_s), "p_gap": float(p_g)}
 
+
+#: which of the significant effects the calibrated decision names (``gap.calibration.selection``;
+#: :meth:`Calibration.decide`)
+SELECTIONS = ("max_z", "largest_improvement")
 
 #: where the noise-only replicates' truths come from (``gap.calibration.null_truth``): 'base' = the fitted model's own
 #: structure (its groups, tied sides), 'elements' = a finer one (every full-model element its own strength, drawn
@@ -523,7 +544,8 @@ def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarra
                            pd.DataFrame(), sc.gap[jo], sc.structure[jo], np.asarray(phi_fit[i], float).copy(),
                            np.asarray(f_fit[i], float).copy(), rms_null=sc.rms[rows], rms_obs=sc.rms[jo],
                            null=cs.null_truth,
-                           null_note=NULL_NOTES[cs.null_truth].format(spread=cs.element_spread))
+                           null_note=NULL_NOTES[cs.null_truth].format(spread=cs.element_spread),
+                           selection=cs.selection, alpha=cs.alpha)
 
     for i, n in enumerate(names):
         jo = next(j for j, m in enumerate(meta_ok) if m[0] == i and m[1] == "observed")

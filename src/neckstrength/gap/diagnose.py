@@ -475,7 +475,10 @@ def _calibrated_decision(cal, refined, pfull: int, alpha: float) -> tuple[str, s
     neutral = dict(refined[b][pfull]).get(b) is None
     pos = dec["delta"][cal.effects.index(b)] > 0
     if dec["p_adjusted"] <= alpha and pos and not neutral:
-        return b, f"effect {b} (p = {dec['p_adjusted']:.3g} <= {alpha:g}, adjusted for {len(cal.effects)} effects)", dec
+        how = (f"; of the effects that pass, the largest held-out improvement (largest standardised one: "
+               f"{dec['best_z']})" if dec.get("best_z", b) != b else "")
+        return b, (f"effect {b} (p = {dec['p_adjusted']:.3g} <= {alpha:g}, adjusted for {len(cal.effects)} effects"
+                   f"{how})"), dec
     why = ("its fitted size on all directions is neutral" if neutral and dec["p_adjusted"] <= alpha
            else f"best {b}, p = {dec['p_adjusted']:.3g} > {alpha:g}" if dec["p_adjusted"] > alpha
            else f"best {b} does not improve the held-out gap")

@@ -52,7 +52,9 @@ class CalibrationSettings:
     individual log strengths, for the strengths the directions leave undetermined in the simulated truths.
     ``null_truth``: the structure of the noise-only replicates' truths, 'base' (the fitted model's own) or 'elements'
     (each full-model element its own strength, factor ``exp(N(0, element_spread))`` per element and replicate:
-    :class:`neckstrength.gap.calibrate.ElementNull`).
+    :class:`neckstrength.gap.calibrate.ElementNull`). ``selection``: which significant effect is named, 'max_z'
+    (the largest standardised improvement) or 'largest_improvement' (the largest improvement of the held-out gap
+    among the effects that pass the maxT test on their own; :meth:`neckstrength.gap.calibrate.Calibration.decide`).
     ``starts`` / ``max_iter``: fits of the screen (the measured data set and its simulated ones alike)."""
 
     replicates: int = 39
@@ -73,6 +75,7 @@ class CalibrationSettings:
     cv_steps: int = 1
     null_truth: str = "base"
     element_spread: float = 0.3
+    selection: str = "max_z"
 
 
 @dataclass(frozen=True)
