@@ -640,7 +640,8 @@ def test_the_decision_figure_has_a_roc_panel_per_protocol_in_the_studys_order_an
     fig = kept[-1]
     fig.canvas.draw()
     titles = [a.get_title() for a in fig.axes]
-    assert titles[:2] == ["ROC: forces (log Bayes factor)", "ROC: forces+emg (log Bayes factor)"], titles
+    assert titles[:2] == ["ROC: forces (log Bayes factor)\n20 deficit, 20 normal patients",
+                          "ROC: forces+emg (log Bayes factor)\n20 deficit, 20 normal patients"], titles
     legends = [a.get_legend() for a in fig.axes if a.get_legend() is not None]
     assert len(legends) == 4
     over = [(a.get_title(), [t.get_text() for t in leg.get_texts()][:2]) for leg in legends for a in fig.axes

@@ -407,8 +407,9 @@ def clinician_decision(config: Mapping, model_name: str, directions_csv, out_run
             atomic_write_csv(pd.DataFrame({"note": ["no forces-only protocol in this study: nothing recalibrated"]}),
                              Path(out_roc).with_name(name), hdr)
     fig_decision_study(runs, rel, cps, decision.p_decide, out_fig,
-                       f"deficit decision on {model_name}-simulated patients: {study.cohort.n_deficit} deficit, "
-                       f"{study.cohort.n_normal} normal; noise {study.cohort.noise:.0%}; seed {seed}")
+                       f"deficit decision on {model_name}-simulated patients: a cohort of {study.cohort.n_deficit} "
+                       f"deficit, {study.cohort.n_normal} normal (each protocol's own count in its ROC title); noise "
+                       f"{study.cohort.noise:.0%}; seed {seed}")
     print(roc.to_string(index=False), flush=True)
     print(seq.to_string(index=False), flush=True)
     print(f"done in {time.time() - t0:.0f} s", flush=True)

@@ -48,7 +48,9 @@ def fig_decision_study(runs: pd.DataFrame, reliability: pd.DataFrame, checkpoint
         a.set_xlabel("false-alarm rate (normal called deficit)")
         a.set_ylabel("sensitivity (deficit called deficit)")
         score = "-log f_c(group) / normal" if protocol == "alg4" else "log Bayes factor"
-        a.set_title(f"ROC: {protocol} ({score})", fontsize=9)
+        kinds = runs.loc[runs["protocol"] == protocol].groupby("kind")["participant"].nunique()
+        a.set_title(f"ROC: {protocol} ({score})\n{kinds.get('deficit', 0)} deficit, {kinds.get('normal', 0)} normal "
+                    "patients", fontsize=9)
         a.set_xlim(0, 1)
         a.set_ylim(0, 1.02)
         if not note:
