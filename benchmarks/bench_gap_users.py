@@ -214,6 +214,8 @@ def main(argv=None) -> dict:
                     r["decision_inputs"] = {"effects": list(cal.effects), "gap_obs": list(map(float, cal.gap_obs)),
                                             "mu": list(map(float, cal.mu)), "sd": list(map(float, cal.sd)),
                                             "t_null": list(map(float, cal.t_null)),
+                                            "delta_null": np.round(np.asarray(cal.delta_null, float), 6).tolist(),
+                                            "gap_null_none": list(map(float, np.asarray(cal.gap_null)[:, 0])),
                                             "rms_obs": None if cal.rms_obs is None else list(map(float, cal.rms_obs))}
                 rows.append(r)
                 fh.write(json.dumps(r, default=float) + "\n")

@@ -167,6 +167,7 @@ def test_reduced_benchmark_runs_end_to_end(tmp_path):
     for x in rows:                     # the decision's inputs, for scoring other selection rules offline
         di = x["decision_inputs"]
         assert len(di["gap_obs"]) == 1 + len(di["effects"]) == 1 + len(di["mu"]) and len(di["t_null"]) == 3
+        assert np.shape(di["delta_null"]) == (3, len(di["effects"])) and len(di["gap_null_none"]) == 3
     tab = pd.read_csv(out / "scores.csv")
     assert tab["group"].str.contains("false alarm").any()
     # the offline selection rules: maxT re-decided from the stored inputs reproduces the run's decisions
