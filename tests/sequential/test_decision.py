@@ -636,6 +636,7 @@ def test_the_decision_figure_has_a_roc_panel_per_protocol_in_the_studys_order_an
     monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
     runs = _fake_runs()
     runs = pd.concat([runs.assign(protocol="forces+emg"), runs], ignore_index=True)     # rows: emg first
+    assert list(dict.fromkeys(roc_table(runs, (1, 5))["protocol"])) == ["forces", "forces+emg"]
     fig_decision_study(runs, reliability_table(runs, (1, 5)), (1, 5), 0.95, tmp_path / "fig.png", "two protocols")
     fig = kept[-1]
     fig.canvas.draw()

@@ -322,7 +322,9 @@ def roc_table(runs: pd.DataFrame, checkpoints: Sequence[int], false_alarm: float
     import warnings
 
     out = []
-    for protocol, gp in runs.groupby("protocol", sort=False):
+    groups = sorted(runs.groupby("protocol", sort=False), key=lambda pg: PROTOCOLS.index(pg[0]) if pg[0] in PROTOCOLS
+                    else len(PROTOCOLS))                  # the study's order (forces first), not the rows'
+    for protocol, gp in groups:
         note = missing_kind(runs, protocol)
         if note:
             warnings.warn(note, stacklevel=2)
