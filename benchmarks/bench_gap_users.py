@@ -142,6 +142,8 @@ def main(argv=None) -> dict:
               "decision": "aim scatter (gap.scatter) after the calibrated choice, 2026-11-28"}
     if ds.calibration.null_truth != "base":      # (a base null keeps the designs of the runs before the option)
         design.update(null_truth=ds.calibration.null_truth, element_spread=ds.calibration.element_spread)
+    if ds.calibration.selection != "max_z":      # (likewise the selection of the runs before 2026-11-28)
+        design.update(selection=ds.calibration.selection)
     dhash = hashlib.sha256(json.dumps(design, sort_keys=True).encode()).hexdigest()[:16]
     out.mkdir(parents=True, exist_ok=True)
     rows_path = out / "rows.jsonl"

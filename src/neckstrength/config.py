@@ -452,7 +452,7 @@ def calibration_settings(config: Mapping) -> CalibrationSettings:
     if isinstance(noise, bool) or not (isinstance(noise, (int, float)) and noise > 0
                                        or noise in ("auto", "repeats", "prior", "heldout")):
         raise ValueError(f"gap.calibration.noise: auto, repeats, prior, heldout or a positive log SD, not {noise!r}")
-    selection = str(c.get("selection", "max_z"))
+    selection = str(c.get("selection", "largest_improvement"))
     if selection not in ("max_z", "largest_improvement"):
         raise ValueError(f"gap.calibration.selection: max_z or largest_improvement, not {selection!r}")
     null = str(c.get("null_truth", "base"))

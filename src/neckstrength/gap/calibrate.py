@@ -182,7 +182,7 @@ class Calibration:
     sensitivity: list = None            # [(label, Calibration at the range's end)], without power
     null: str = "base"                  # where the null's truths come from (NULL_TRUTHS)
     null_note: str = ""                 # the report's sentence about it (NULL_NOTES)
-    selection: str = "max_z"            # which significant effect is named (SELECTIONS)
+    selection: str = "largest_improvement"   # which significant effect is named (SELECTIONS)
     alpha: float = 0.05                 # the level at which an effect counts as significant for ``selection``
 
     def decide(self, gap: np.ndarray) -> dict:

@@ -52,9 +52,10 @@ class CalibrationSettings:
     individual log strengths, for the strengths the directions leave undetermined in the simulated truths.
     ``null_truth``: the structure of the noise-only replicates' truths, 'base' (the fitted model's own) or 'elements'
     (each full-model element its own strength, factor ``exp(N(0, element_spread))`` per element and replicate:
-    :class:`neckstrength.gap.calibrate.ElementNull`). ``selection``: which significant effect is named, 'max_z'
-    (the largest standardised improvement) or 'largest_improvement' (the largest improvement of the held-out gap
-    among the effects that pass the maxT test on their own; :meth:`neckstrength.gap.calibrate.Calibration.decide`).
+    :class:`neckstrength.gap.calibrate.ElementNull`). ``selection``: which significant effect is named,
+    'largest_improvement' (the largest improvement of the held-out gap among the effects that pass the maxT test on
+    their own; the default since 2026-11-28) or 'max_z' (the largest standardised improvement, before);
+    :meth:`neckstrength.gap.calibrate.Calibration.decide`.
     ``starts`` / ``max_iter``: fits of the screen (the measured data set and its simulated ones alike)."""
 
     replicates: int = 39
@@ -75,7 +76,7 @@ class CalibrationSettings:
     cv_steps: int = 1
     null_truth: str = "base"
     element_spread: float = 0.3
-    selection: str = "max_z"
+    selection: str = "largest_improvement"
 
 
 @dataclass(frozen=True)
