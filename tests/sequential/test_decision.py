@@ -676,7 +676,7 @@ def test_a_study_in_alternating_order_gives_each_patient_the_rows_it_gets_alone(
         pd.testing.assert_frame_equal(both[both["participant"] == i].reset_index(drop=True), alone, rtol=1e-9)
 
 
-def test_a_protocols_cache_keeps_its_columns_and_drops_a_file_of_other_settings(tmp_path):
+def test_a_protocols_cache_keeps_its_columns_and_sets_a_file_of_other_settings_aside(tmp_path):
     from neckstrength.pipeline.clinician import _append_cache, _read_cache
 
     f = tmp_path / "forces.csv"
@@ -685,6 +685,12 @@ def test_a_protocols_cache_keeps_its_columns_and_drops_a_file_of_other_settings(
     got = _read_cache(f, "abc")
     assert list(got.columns) == ["participant", "t", "log_bf"] and list(got["log_bf"]) == [0.5, 0.7]
     assert _read_cache(f, "other").empty and not f.exists()
+    kept = list(tmp_path.glob("forces.*.csv"))                    # set aside, not deleted
+    assert len(kept) == 1
+    _append_cache(f, "other", pd.DataFrame({"participant": [5], "t": [1], "log_bf": [0.1]}))
+    back = _read_cache(f, "abc")                                  # back to the first settings: their runs return
+    assert list(back["log_bf"]) == [0.5, 0.7] and len(list(tmp_path.glob("forces.*.csv"))) == 1
+    assert list(_read_cache(f, "other")["participant"]) == [5]
 
 
 def test_the_study_on_one_blas_thread_gives_the_same_runs(p2m7):

@@ -223,16 +223,33 @@ def _protocol_signature(decision, study, joint, seed: int, model_name: str, prot
                                               "extra": repr(extra)}, seed, model_name)
 
 
-def _read_cache(path: Path, sig: str) -> pd.DataFrame:
-    """The rows of a protocol's cache file written with signature ``sig`` (a file with another is removed)."""
-    if not path.exists():
-        return pd.DataFrame()
+def _aside(path: Path, sig: str) -> Path:
+    """Where a protocol's cache written with signature ``sig`` is kept while another signature is in use."""
+    import hashlib
+
+    return path.with_name(f"{path.stem}.{hashlib.sha256(sig.encode()).hexdigest()[:12]}{path.suffix}")
+
+
+def _signature_of(path: Path) -> str:
     with path.open() as fh:
         head = fh.readline().strip()
-    if head != f"# signature {sig}":
-        path.unlink()
-        return pd.DataFrame()
-    return pd.read_csv(path, comment="#")
+    return head[len("# signature "):] if head.startswith("# signature ") else ""
+
+
+def _read_cache(path: Path, sig: str) -> pd.DataFrame:
+    """The rows of a protocol's cache file written with signature ``sig``. A file with another signature is set
+    aside (``<name>.<hash of its signature>.csv``, not deleted: its runs took hours), and one set aside earlier
+    with ``sig`` is taken back, so returning to earlier settings reuses their runs."""
+    if path.exists():
+        old = _signature_of(path)
+        if old == sig:
+            return pd.read_csv(path, comment="#")
+        path.replace(_aside(path, old))
+    back = _aside(path, sig)
+    if back.exists() and _signature_of(back) == sig:
+        back.replace(path)
+        return pd.read_csv(path, comment="#")
+    return pd.DataFrame()
 
 
 def _append_cache(path: Path, sig: str, rows: pd.DataFrame) -> None:
