@@ -122,3 +122,13 @@ def test_only_pipeline_imports_pipeline():
 
 def test_errors_sit_at_the_bottom():
     assert import_graph()["neckstrength.errors"] == set()
+
+
+def test_test_modules_have_unique_basenames():
+    # pytest imports test modules by basename (no __init__.py in tests/): two files of one name in different folders
+    # stop the whole collection ("import file mismatch"), which only a full run shows
+    from collections import Counter
+    from pathlib import Path
+
+    names = Counter(p.name for p in Path(__file__).parent.rglob("test_*.py"))
+    assert not [n for n, k in names.items() if k > 1]
