@@ -103,14 +103,17 @@ def test_radar_of_a_planar_model_has_no_empty_panel(tmp_path, figures, direction
         radar_grid_series(directions, [("none", pd.Series(dtype=float), {})], tmp_path / "n.png")
 
 
-def _label_clashes(fig) -> list[str]:
-    """Pairs of direction labels (theta tick labels) of one radar panel whose boxes overlap once drawn."""
+def _drawn_panels(fig):
+    """The visible axes of ``fig`` once drawn, each with the renderer that measures its text boxes."""
     fig.canvas.draw()
     r = fig.canvas.get_renderer()
+    return [(ax, r) for ax in fig.axes if ax.get_visible()]
+
+
+def _label_clashes(fig) -> list[str]:
+    """Pairs of direction labels (theta tick labels) of one radar panel whose boxes overlap once drawn."""
     bad = []
-    for ax in fig.axes:
-        if not ax.get_visible():
-            continue
+    for ax, r in _drawn_panels(fig):
         labs = [t.label1 for t in ax.xaxis.get_major_ticks() if t.label1.get_visible() and t.label1.get_text()]
         boxes = [t.get_window_extent(r) for t in labs]
         bad += [f"{ax.get_title()}: {labs[i].get_text()!r} / {labs[j].get_text()!r}" for i in range(len(labs))
@@ -135,12 +138,8 @@ def test_radar_direction_labels_do_not_overlap(tmp_path, figures, directions):
 def _radius_labels_over_lines(fig) -> list[str]:
     """Radius labels (y tick labels) of a radar panel whose drawn boxes a plotted line crosses (segments sampled in
     display coordinates)."""
-    fig.canvas.draw()
-    r = fig.canvas.get_renderer()
     bad = []
-    for ax in fig.axes:
-        if not ax.get_visible():
-            continue
+    for ax, r in _drawn_panels(fig):
         pts = []
         for line in ax.lines:
             xy = ax.transData.transform(line.get_xydata())
