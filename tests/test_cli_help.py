@@ -61,6 +61,14 @@ def test_version():
     assert r.stdout.strip() == f"neckstrength {version('neckstrength')}"
 
 
+def test_python_m_neckstrength():
+    """``python -m neckstrength`` is the installed script (the package has a ``__main__``)."""
+    r = subprocess.run([sys.executable, "-m", "neckstrength", "--version"], capture_output=True, text=True,
+                       cwd=ROOT, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == f"neckstrength {version('neckstrength')}"
+
+
 def test_every_command_is_described():
     assert set(SUBS) == set(COMMANDS), "COMMANDS and the parser's subcommands differ"
     assert set(OPTIONS) <= set(SUBS)
