@@ -39,7 +39,7 @@ def main() -> int:
     from neckstrength.gap.truths import CaseSettings, TruthForces, TruthSetup, draw_params, make_forces
     from neckstrength.sequential.cohort import simulate_participant
     from neckstrength.sequential.decision import DeficitDecision
-    from neckstrength.sequential.decision_study import _auc
+    from neckstrength.sequential.decision_study import roc_auc
     from neckstrength.wrench import BasisCache
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -126,7 +126,7 @@ def main() -> int:
         row = {"truth": protocol}
         for t in (5, 10, 25):
             gt = g[g["t"] == t]
-            row[f"auc_t{t}"] = _auc(gt.loc[gt["kind"] == "deficit", "log_bf"], gt.loc[gt["kind"] == "normal", "log_bf"])
+            row[f"auc_t{t}"] = roc_auc(gt.loc[gt["kind"] == "deficit", "log_bf"], gt.loc[gt["kind"] == "normal", "log_bf"])
         # the stopping rule read from log BF (min_tests, p_decide), "model misfit" (the run's own) first
         for name, to_p in (("model P", lambda x: 1 / (1 + np.exp(-x))),
                            ("recalibrated P", lambda x: 1 / (1 + np.exp(-np.array([cal.log_lr(v) for v in x], float))))):

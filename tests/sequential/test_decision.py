@@ -14,7 +14,7 @@ from scipy.stats import truncnorm, uniform
 from neckstrength.estimation.datasets import simulated_dataset, thesis_f_actual
 from neckstrength.sequential.cohort import CohortSettings, draw_truth
 from neckstrength.sequential.decision import DecisionSettings, DeficitDecision, HypothesisPrior
-from neckstrength.sequential.decision_study import _auc, reliability_table, roc_table, sequential_table
+from neckstrength.sequential.decision_study import reliability_table, roc_auc, roc_table, sequential_table
 from neckstrength.sequential.joint import JointPosterior, JointSettings
 from neckstrength.wrench import solve
 
@@ -181,8 +181,8 @@ def _fake_runs():
 
 
 def test_study_summaries():
-    assert _auc(np.array([3.0, 2.0]), np.array([1.0, 0.0])) == 1.0
-    assert _auc(np.array([1.0]), np.array([1.0])) == 0.5
+    assert roc_auc(np.array([3.0, 2.0]), np.array([1.0, 0.0])) == 1.0
+    assert roc_auc(np.array([1.0]), np.array([1.0])) == 0.5
     runs = _fake_runs()
     roc = roc_table(runs, (1, 5), 0.05, 0.95)
     assert list(roc["t"]) == [1, 5]

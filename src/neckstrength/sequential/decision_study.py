@@ -255,7 +255,7 @@ def _with_p(runs: pd.DataFrame) -> pd.DataFrame:
     return runs[runs["p_deficit"].notna()] if "p_deficit" in runs.columns else runs
 
 
-def _auc(pos: np.ndarray, neg: np.ndarray) -> float:
+def roc_auc(pos: np.ndarray, neg: np.ndarray) -> float:
     """Mann-Whitney estimate of P(score of a deficit > score of a normal), ties counted half."""
     pos, neg = np.asarray(pos, float), np.asarray(neg, float)
     gt = (pos[:, None] > neg[None, :]).mean()
@@ -336,7 +336,7 @@ def roc_table(runs: pd.DataFrame, checkpoints: Sequence[int], false_alarm: float
             pos = sc[g["kind"] == "deficit"].to_numpy(float)
             neg = sc[g["kind"] == "normal"].to_numpy(float)
             if len(pos) and len(neg):
-                auc = _auc(pos, neg)
+                auc = roc_auc(pos, neg)
                 curve = roc_curve(runs, protocol, t)
                 ok = curve[curve["false_alarm"] <= false_alarm]
                 best = ok.iloc[int(np.argmax(ok["sensitivity"].to_numpy()))]
