@@ -10,4 +10,6 @@ if [ -z "${CHROMIUM:-}" ] && ! command -v chromium >/dev/null && ! command -v ch
   { apt-get update -qq && apt-get install -y -qq --no-install-recommends chromium >/dev/null; } ||
     { echo "test.sh: could not install Debian's chromium (needs root and apt); install it, or set CHROMIUM to a Chromium executable" >&2; exit 1; }
 fi
-.venv/bin/python -m pytest "$@"
+# Two worker processes (pytest-xdist; PYTEST_WORKERS overrides, 0 = one process): the suite takes about half the
+# time on 2 cores. Tests that share the reduced pipeline's workflow copy stay in one worker (tests/conftest.py).
+.venv/bin/python -m pytest -n "${PYTEST_WORKERS:-2}" --dist loadgroup "$@"

@@ -25,6 +25,15 @@ def run_cmd(cmd, cwd, timeout=900):
     return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout)
 
 
+def pytest_collection_modifyitems(config, items):
+    """With several pytest-xdist workers (test.sh: ``-n 2 --dist loadgroup``) every test that uses the workflow copy
+    (:func:`repo_copy`, and so the reduced pipeline run in it) goes to one worker: the run is made once, as in a
+    single process, and no two processes run Snakemake in one directory."""
+    for item in items:
+        if "repo_copy" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.xdist_group("workflow"))
+
+
 @pytest.fixture(scope="session")
 def repo_copy(tmp_path_factory):
     """Snakefile, workflow/, config/ and data/ copied to a temporary directory."""
