@@ -37,3 +37,21 @@ def test_direction_sensitivity_is_zero_on_a_zero_ring_and_grows_with_it(ctx_s3):
     v5 = direction_sensitivity(ctx_s3.model, f, P[:4], N[:4], ScatterSettings(ring_deg=5.0))
     v15 = direction_sensitivity(ctx_s3.model, f, P[:4], N[:4], ScatterSettings(ring_deg=15.0))
     assert np.all(v5 > 0) and np.all(v15 > v5)
+
+
+def test_scatter_power_benchmark_runs_and_reports_every_statistic():
+    """benchmarks/bench_gap_scatter_power.py (the shape test's power with the true strengths) on two cases: every
+    statistic's power and noise-alone share are reported as shares of the cases."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_gap_scatter_power.py"
+    spec = importlib.util.spec_from_file_location("bench_gap_scatter_power", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = mod.main(["--cases", "2", "--permutations", "19"])
+    assert set(out["stats"]) == {"slope_r2", "slope_abs", "spearman_abs", "logv_r2", "sqrtv_abs"}
+    for v in out["stats"].values():
+        assert set(v) == {"aim_01", "aim_05", "noise_01", "noise_05"}
+        assert all(x in (0.0, 0.5, 1.0) for x in v.values())
+        assert v["aim_01"] <= v["aim_05"] and v["noise_01"] <= v["noise_05"]
