@@ -8,6 +8,7 @@ all, and :func:`ci_report` builds its report once. The copy never touches a user
 """
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -25,13 +26,33 @@ def run_cmd(cmd, cwd, timeout=900):
     return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout)
 
 
-def pytest_collection_modifyitems(config, items):
-    """With several pytest-xdist workers (test.sh: ``-n 2 --dist loadgroup``) every test that uses the workflow copy
-    (:func:`repo_copy`, and so the reduced pipeline run in it) goes to one worker: the run is made once, as in a
-    single process, and no two processes run Snakemake in one directory."""
-    for item in items:
-        if "repo_copy" in getattr(item, "fixturenames", ()):
-            item.add_marker(pytest.mark.xdist_group("workflow"))
+#: Fixtures of the workflow copy: the tests that use them share one copy and one reduced pipeline run
+WORKFLOW_FIXTURES = ("repo_copy", "ci_pipeline", "ci_report")
+
+
+def workflow_test_files() -> set[str]:
+    """Test modules (``tests/...py``, as in node ids) that name a fixture of :data:`WORKFLOW_FIXTURES`."""
+    pat = re.compile(r"\b(" + "|".join(WORKFLOW_FIXTURES) + r")\b")
+    return {p.relative_to(ROOT).as_posix() for p in (ROOT / "tests").rglob("test_*.py") if pat.search(p.read_text())}
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """With pytest-xdist and ``--dist loadgroup`` (test.sh: ``-n 2 --dist loadgroup``): every test of a module in
+    :func:`workflow_test_files` runs in one worker, so the reduced pipeline is run once, as in a single process, and
+    no two processes run Snakemake in one workflow copy; every other test is its own unit, as with ``--dist load``.
+    (Not the ``xdist_group`` mark: with pytest 9.2 xdist's group suffix on the node ids no longer takes effect.
+    tests/test_imports.py checks that every test using these fixtures is in one of those modules.)"""
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    files = workflow_test_files()
+
+    class WorkflowInOneWorker(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return "workflow" if nodeid.split("::", 1)[0] in files else nodeid
+
+    return WorkflowInOneWorker(config, log)
 
 
 @pytest.fixture(scope="session")

@@ -132,3 +132,17 @@ def test_test_modules_have_unique_basenames():
 
     names = Counter(p.name for p in Path(__file__).parent.rglob("test_*.py"))
     assert not [n for n, k in names.items() if k > 1]
+
+
+def test_every_test_of_the_workflow_copy_runs_in_the_workflow_worker(request):
+    # test.sh runs two pytest-xdist workers; tests/conftest.py keeps the modules that name the workflow copy's
+    # fixtures in one worker (one reduced pipeline run). A test that reaches those fixtures in another way (a fixture
+    # of a conftest, say) would get a second copy and run the pipeline again in the other worker.
+    from conftest import WORKFLOW_FIXTURES, workflow_test_files
+
+    files = workflow_test_files()
+    assert "tests/pipeline/test_pipeline.py" in files and "tests/test_imports.py" not in files
+    users = {item.nodeid.split("::", 1)[0] for item in request.session.items
+             if set(WORKFLOW_FIXTURES) & set(getattr(item, "fixturenames", ()))}
+    assert users, "no collected test uses the workflow copy: the check sees nothing"
+    assert users <= files, sorted(users - files)
