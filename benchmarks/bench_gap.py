@@ -21,6 +21,11 @@ Run from the repository root::
     .venv/bin/python benchmarks/bench_gap.py --workers 2 --fused     # the fused pass against the per-direction solver
     .venv/bin/python benchmarks/bench_gap.py --fused --only-calibrated --out bench_gap_cal.json
     .venv/bin/python benchmarks/bench_gap.py --staged --only-calibrated --workers 2   # against the one-stage screen
+    .venv/bin/python benchmarks/bench_gap.py --only-calibrated --workers 2 --against-src ../ref/src   # older code
+
+``--against-src DIR`` times the same command twice in fresh processes, first with the package imported from ``DIR``
+(e.g. the ``src`` of a ``git worktree`` of an older commit: the reference), then with this checkout's, and prints
+the ratios of CPU (main and worker processes), wall and peak resident memory, and whether the summaries agree.
 """
 
 from __future__ import annotations
@@ -29,6 +34,10 @@ import argparse
 import json
 import os
 import platform
+import resource
+import subprocess
+import sys
+import tempfile
 import time
 from dataclasses import replace
 
@@ -82,7 +91,10 @@ def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: boo
                     "summary": {k: v for k, v in d.summary.items() if isinstance(v, (str, int, float, bool))},
                     "ranking": d.effects[["candidate", "gap_cv"]].to_dict("list"),
                     "power": d.power.to_dict("list") if len(d.power) else {},
-                    "sensitivity": d.summary.get("sensitivity", [])}
+                    "sensitivity": d.summary.get("sensitivity", []),
+                    # peak resident memory so far (this process; the largest worker process waited for)
+                    "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                    "maxrss_workers_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
         print(f"{tag}: {out[tag]['wall_s']:.0f} s wall, {out[tag]['cpu_s']:.0f} s CPU (+ "
               f"{out[tag]['cpu_workers_s']:.0f} s in worker processes), load "
               f"{l0:.1f} -> {out[tag]['load_after']:.1f}: {d.summary.get('decision')}", flush=True)
@@ -123,6 +135,44 @@ def run(cfg_path: str, model: str, dataset: str, reference: bool, calibrate: boo
     return out
 
 
+def against(src: str, argv: list[str]) -> dict:
+    """The benchmark with ``argv`` in two fresh processes, the package first from ``src`` (the reference), then
+    from this checkout; returns both results and prints the ratios (reference / this) and the differences."""
+    here = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "src")
+    res = {}
+    for tag, path in (("reference", os.path.abspath(src)), ("this", here)):
+        with tempfile.TemporaryDirectory() as tmp:
+            out = os.path.join(tmp, "out.json")
+            env = {**os.environ, "PYTHONPATH": path + os.pathsep + os.environ.get("PYTHONPATH", "")}
+            print(f"--- {tag}: package from {path}", flush=True)
+            subprocess.run([sys.executable, os.path.abspath(__file__), *argv, "--out", out], env=env, check=True)
+            with open(out) as fh:
+                res[tag] = json.load(fh)
+    for k, v in res["this"].items():
+        if not isinstance(v, dict) or "wall_s" not in v or k not in res["reference"]:
+            continue
+        a, b = v, res["reference"][k]
+        cpu_a, cpu_b = a["cpu_s"] + a["cpu_workers_s"], b["cpu_s"] + b["cpu_workers_s"]
+        rss_a = max(a["maxrss_mb"], a["maxrss_workers_mb"])
+        rss_b = max(b["maxrss_mb"], b["maxrss_workers_mb"])
+        diffs = _differences(a, b)
+        import pandas as pd
+
+        if not pd.DataFrame(a["power"]).equals(pd.DataFrame(b["power"])):
+            diffs.append("power table")
+        if not _close(a["sensitivity"], b["sensitivity"]):
+            diffs.append("sensitivity")
+        res[k + "_against"] = {"ratio_cpu": cpu_b / cpu_a, "ratio_wall": b["wall_s"] / a["wall_s"],
+                               "rss_mb": [rss_b, rss_a], "differences": diffs}
+        print(f"{k}: this {cpu_a:.1f} s CPU ({a['cpu_workers_s']:.1f} s of it in workers), {a['wall_s']:.1f} s wall, "
+              f"peak RSS {rss_a:.0f} MB; reference {cpu_b:.1f} s CPU ({b['cpu_workers_s']:.1f}), {b['wall_s']:.1f} s "
+              f"wall, {rss_b:.0f} MB: {cpu_b / cpu_a:.2f}x less CPU, {b['wall_s'] / a['wall_s']:.2f}x less wall, "
+              f"{rss_b / rss_a:.2f}x less memory; load {b['load_before']:.1f} -> {a['load_after']:.1f}; "
+              + ("decision, summary, ranking, power table and sensitivity equal to 1e-6" if not diffs
+                 else "DIFFERENT: " + "; ".join(diffs[:5])), flush=True)
+    return res
+
+
 def _warm_up(ctx) -> None:
     """Load both solver paths' compiled code (numba's cache) before anything is timed."""
     import numpy as np
@@ -138,6 +188,17 @@ def _warm_up(ctx) -> None:
     F = inst.strengths(ctx.model.strengths[None] * np.array([[1.0], [0.9], [1.1]]))
     for fused in (False, True):
         solve(model, F, U, lb, ub, cache=BasisCache(fused=fused))
+
+
+def _close(x, y, tol: float = 1e-6) -> bool:
+    """Two JSON values equal, numbers to ``tol`` relative (NaN equal to NaN)."""
+    if isinstance(x, dict) and isinstance(y, dict):
+        return x.keys() == y.keys() and all(_close(x[k], y[k], tol) for k in x)
+    if isinstance(x, list) and isinstance(y, list):
+        return len(x) == len(y) and all(_close(u, v, tol) for u, v in zip(x, y))
+    if isinstance(x, float) and isinstance(y, (int, float)) and not isinstance(y, bool):
+        return x == y or abs(x - y) <= tol * max(1.0, abs(y)) or (x != x and y != y)
+    return x == y
 
 
 def _differences(a: dict, b: dict, tol: float = 1e-6) -> list[str]:
@@ -176,7 +237,22 @@ def main() -> None:
                     help="also time the calibrated diagnosis as before 2026-11-28 (the reference: power replicates "
                          "in the null's screen, gap.calibration.POWER_IN_TWO_STAGES = False; sensitivity with "
                          "`replicates` per end)")
+    ap.add_argument("--against-src", default=None, metavar="DIR",
+                    help="time the same command with the package from DIR first (the reference, e.g. an older "
+                         "commit's src), then with this checkout's, each in a fresh process")
     a = ap.parse_args()
+    if a.against_src:
+        argv = [x for x in sys.argv[1:]]
+        i = argv.index("--against-src")
+        del argv[i:i + 2]
+        if "--out" in argv:
+            i = argv.index("--out")
+            del argv[i:i + 2]
+        res = against(a.against_src, argv)
+        if a.out:
+            with open(a.out, "w") as fh:
+                json.dump(res, fh, indent=2)
+        return
     res = run(a.config, a.model, a.dataset, a.reference, not a.no_calibration,
               a.effects.split(",") if a.effects else None, a.workers, a.fused, a.only_calibrated, a.staged)
     if a.out:

@@ -101,3 +101,27 @@ def test_independent_solver_subsample():
         w_ref, st_ref = linprog_reference(model, F[i], U[k], lb, ub)
         assert status[i, k] == st_ref
         assert abs(w[i, k] - w_ref) <= 1e-7 * max(abs(w_ref), 1.0)      # linprog's own tolerance is 1e-9 relative
+
+
+def test_bases_live_in_a_pool_that_grows_with_the_bases_held():
+    """The large maps of the cached bases (checks, basic map, inverse) are taken from a pool shared by the store's
+    slots as bases are learned, so a store holds about as many as it learned, not ``capacity`` per slot; every slot's
+    bases own distinct pool entries, and a capacity reached in some slots replaces bases in place."""
+    from neckstrength.wrench.fused import FusedStore
+
+    rng = np.random.default_rng(34)
+    model, U_real, _ = get_model("s3m24", 5)
+    U = np.vstack([U_real, unit(rng, 100, U_real.shape[1])])
+    cache = BasisCache(fused=True)
+    for F in _walk(rng, model, 30, 3, step=0.15):          # the real directions: their slots fill up
+        assert_agrees(model, F, U_real, cache=cache)
+    for F in _walk(rng, model, 2, 3):                       # and 100 more directions, visited twice
+        assert_agrees(model, F, U, cache=cache)
+    (st,) = cache._stores.values()
+    assert isinstance(st, FusedStore)
+    a = st.arrays
+    nb = a["nb"][:st.S]
+    used = np.concatenate([a["pidx"][s, :nb[s]] for s in range(st.S)])
+    assert len(np.unique(used)) == len(used) == int(st.npool[0]) == nb.sum() <= st.pool_size
+    assert nb.max() == st.C and nb.min() < st.C / 2               # some slots full (replacing), others not
+    assert nb.sum() < st.S * st.C / 2 and st.pool_size < st.S * st.C   # not capacity for every slot

@@ -16,8 +16,13 @@ packed in arrays, and :func:`_fused_solve` answers every (row, direction) of a c
    passes is optimal. (Checking the previous row's basis first was cheaper, but made a row's answer, where the
    optimum is not unique, depend on the row before it; see ``FusedStore``'s note on history);
 2. else the slot's cached Farkas certificates (copied from the batched solver) may prove the row infeasible;
-3. else the compiled dual simplex runs from that basis and its final basis is certified from scratch
-   (:func:`neckstrength.wrench.simplex._certify`, the tests the batched solver applies) and learned;
+3. else the compiled dual simplex runs from that basis (without rebuilding the inverse at its end) and its final
+   basis is learned: ``make_basis`` inverts it afresh and checks dual feasibility and conditioning (the tests of the
+   batched solver's ``_add_basis``), and the row is answered where the new basis's checks pass, the test of a cache
+   hit; where they do not (a basis already cached or rejected, an updated inverse that was off), the certificate
+   from scratch decides (:func:`neckstrength.wrench.simplex._certify`, the tests the batched solver applies). This
+   does the factorisation work once per miss (it was done three times: at the simplex's end, in the certificate
+   and in ``make_basis``);
 4. what is left (a failed certificate, a suspected infeasibility, a direction without a first basis) goes back
    to the batched solver, and so to HiGHS.
 
@@ -87,13 +92,17 @@ def _answer(CWs, q, wbasic, Ts, SBs, SSs, f, lb, ub, want_alpha, alpha_out, n, m
 
 @njit(cache=True, nogil=True)
 def _learn(s, basic, status, f, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE, B2, primal_tol, dual_tol, gap_rel,
-           max_cond, nb, CW, qv, wb, T4, dvec, SB, SS, SBinv, hits, bcols_buf, brows_buf, col_buf):
+           max_cond, nb, CW, qv, wb, T4, dvec, SB, SS, SBinv, hits, pidx, npool, ws, bcols_buf, brows_buf, col_buf):
     """Cache the basis (``basic``, ``status``) in slot ``s`` (replacing the least-hit one when full); returns its
-    index or -1 (already cached, or rejected by ``make_basis``)."""
+    index or -1 (already cached, or rejected by ``make_basis``).
+
+    The maps go to the pool entry ``pidx[s, c]`` (``CW``, ``T4``, ``SBinv``); a new basis of a slot that is not full
+    takes the next free entry ``npool[0]``, which the caller guarantees to exist (:meth:`FusedStore._reserve`).
+    ``ws``: the work arrays of :func:`_work` (the map buffers and ``make_basis_ws``'s)."""
     n = basic.shape[0]
     mp1 = status.shape[0]
     m = mp1 - 1
-    C = CW.shape[1]
+    C = qv.shape[1]
     # already cached? (same basic set and statuses)
     for c in range(nb[s]):
         same = True
@@ -132,26 +141,26 @@ def _learn(s, basic, status, f, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE, B2, p
     brows.sort()
     for j in range(mp1):
         col_buf[j] = status[j]
-    n_cw = CW.shape[2]
-    Binv_s = np.empty((n, n))
-    T_s = np.empty((n, m))
-    CW_s = np.empty((n_cw, m))
-    dvec_s = np.empty(m)
-    ok, q, w_basic = _sx.make_basis(A3[s], LB[s], UB[s], ACOL1[s], FSCALE, WSCALE[s], RSCALE[s], B2[s], bcols,
-                                    brows, col_buf, f, primal_tol, dual_tol, gap_rel, max_cond, Binv_s, T_s, CW_s,
-                                    dvec_s)
+    Binv_s, T_s, CW_s, dvec_s, Bw, Mw, yw, dw, sw = ws
+    ok, q, w_basic = _sx.make_basis_ws(A3[s], LB[s], UB[s], ACOL1[s], FSCALE, WSCALE[s], RSCALE[s], B2[s], bcols,
+                                       brows, col_buf, f, primal_tol, dual_tol, gap_rel, max_cond, Binv_s, T_s, CW_s,
+                                       dvec_s, Bw, Mw, yw, dw, sw)
     if not ok:
         return -1
     if nb[s] < C:
         c = nb[s]
+        p = npool[0]
+        npool[0] += 1
+        pidx[s, c] = p
     else:
         c = 0
         for cc in range(1, C):
             if hits[s, cc] < hits[s, c]:
                 c = cc
-    SBinv[s, c] = Binv_s
-    T4[s, c] = T_s
-    CW[s, c, :q + 1] = CW_s[:q + 1]
+        p = pidx[s, c]
+    SBinv[p] = Binv_s
+    T4[p] = T_s
+    CW[p, :q + 1] = CW_s[:q + 1]
     dvec[s, c] = dvec_s
     qv[s, c] = q
     wb[s, c] = w_basic
@@ -168,8 +177,15 @@ def _learn(s, basic, status, f, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE, B2, p
 
 
 @njit(cache=True, nogil=True)
+def _work(n, m):
+    """The work arrays of :func:`_learn`: ``Binv``, ``T``, ``CW`` and ``dvec`` buffers, then ``make_basis_ws``'s."""
+    return (np.empty((n, n)), np.empty((n, m)), np.empty((2 * n + 3, m)), np.empty(m), np.empty((n, n)),
+            np.empty((n, n)), np.empty(n), np.empty(m + 1), np.empty(m))
+
+
+@njit(cache=True, nogil=True)
 def _start_basis(s, f, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE, B2, primal_tol, dual_tol, gap_rel, max_cond,
-                 nb, CW, qv, wb, T4, dvec, SB, SS, SBinv, hits, bcols_buf, brows_buf, col_buf):
+                 nb, CW, qv, wb, T4, dvec, SB, SS, SBinv, hits, pidx, npool, ws, bcols_buf, brows_buf, col_buf):
     """The slack basis of ``DirectionSolver._start_basis`` (``w`` basic in the row of the largest ``|b|``, the
     other rows' logicals basic, each force at the bound its reduced cost asks for), cached in slot ``s``."""
     n = A3.shape[1]
@@ -192,18 +208,20 @@ def _start_basis(s, f, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE, B2, primal_tol
             basic[k] = m + 1 + i
             k += 1
     return _learn(s, basic, status, f, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE, B2, primal_tol, dual_tol, gap_rel,
-                  max_cond, nb, CW, qv, wb, T4, dvec, SB, SS, SBinv, hits, bcols_buf, brows_buf, col_buf)
+                  max_cond, nb, CW, qv, wb, T4, dvec, SB, SS, SBinv, hits, pidx, npool, ws, bcols_buf, brows_buf,
+                  col_buf)
 
 
 @njit(cache=True, nogil=True, fastmath=_sx._FM)
 def _fused_solve(F, slots, unbounded, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE, ABSB, B2, nb, CW, qv, wb, T4,
-                 dvec, SB, SS, SBinv, hits, last, NFK, FK, max_iter, primal_tol, dual_tol, gap_rel, max_cond,
-                 zero_rel, decay, want_alpha, out_w, out_code, out_alpha, counters):
+                 dvec, SB, SS, SBinv, hits, pidx, npool, last, NFK, FK, max_iter, primal_tol, dual_tol, gap_rel,
+                 max_cond, zero_rel, decay, want_alpha, out_w, out_code, out_alpha, counters):
     """Every row of ``F`` (N x m) for every call direction ``k`` (slot ``slots[k]``); see the module docstring.
 
     Writes ``out_w`` (N x K), ``out_code`` (N x K: ``OK``/``ZERO``/``INFEASIBLE``/``FAILED``/``UNBOUNDED``) and,
     with ``want_alpha``, ``out_alpha`` (N x K x m). ``counters``: cache hits, simplex solves, pivots, learned
-    bases, Farkas hits, failures (added to)."""
+    bases, Farkas hits, failures (added to). ``CW``, ``T4``, ``SBinv``: the store's pool (slot ``s``'s basis ``c`` at
+    entry ``pidx[s, c]``; ``npool[0]`` entries in use, room for the bases this call can learn)."""
     N, m = F.shape
     K = slots.shape[0]
     n = A3.shape[1]
@@ -231,6 +249,7 @@ def _fused_solve(F, slots, unbounded, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE,
     bcols_buf = np.empty(n, dtype=np.int64)
     brows_buf = np.empty(n, dtype=np.int64)
     col_buf = np.empty(mp1, dtype=np.int64)
+    ws = _work(n, m)
     fsum = np.empty(N)
     for i in range(N):
         t = 0.0
@@ -262,9 +281,10 @@ def _fused_solve(F, slots, unbounded, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE,
                     bv = v
                     c = cc
             if c >= 0:
-                ok = _check(CW[s, c], qv[s, c], f, m)
+                ok = _check(CW[pidx[s, c]], qv[s, c], f, m)
             if ok:
-                w = _answer(CW[s, c], qv[s, c], wb[s, c], T4[s, c], SB[s, c], SS[s, c], f, LB[s], UB[s],
+                p = pidx[s, c]
+                w = _answer(CW[p], qv[s, c], wb[s, c], T4[p], SB[s, c], SS[s, c], f, LB[s], UB[s],
                             want_alpha, alpha_tmp, n, m)
                 hits[s, c] += 1.0
                 last[s] = c
@@ -294,8 +314,8 @@ def _fused_solve(F, slots, unbounded, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE,
                     have_AT = True
                 if nb[s] == 0:
                     c = _start_basis(s, f, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE, B2, primal_tol, dual_tol,
-                                     gap_rel, max_cond, nb, CW, qv, wb, T4, dvec, SB, SS, SBinv, hits, bcols_buf,
-                                     brows_buf, col_buf)
+                                     gap_rel, max_cond, nb, CW, qv, wb, T4, dvec, SB, SS, SBinv, hits, pidx, npool,
+                                     ws, bcols_buf, brows_buf, col_buf)
                     it_max = max_iter + 20 * (n + 1) if max_iter > 0 else 0
                 else:
                     it_max = max_iter
@@ -305,22 +325,38 @@ def _fused_solve(F, slots, unbounded, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE,
                     for j in range(mp1):
                         status[j] = SS[s, c, j]
                     res, piv = _sx._dual_simplex(AT, LB[s], UB[s], ACOL1[s], WSCALE[s], RSCALE[s], f, basic, status,
-                                                 SBinv[s, c], it_max, primal_tol, B, Binv, M, lo, hi, ptol,
-                                                 isbasic, rhs, xB, y, rho, aq, colv)
-                    if res == _sx.CERTIFIED:
-                        good, w = _sx._certify(AT, LB[s], UB[s], ACOL1[s], WSCALE[s], RSCALE[s], ABSB[s], f, basic,
-                                               status, primal_tol, dual_tol, gap_rel, max_cond, alpha_tmp,
-                                               want_alpha, B, Binv, y, d, sv, rhs, xB)
+                                                 SBinv[pidx[s, c]], it_max, primal_tol, B, Binv, M, lo, hi, ptol,
+                                                 isbasic, rhs, xB, y, rho, aq, colv, False)
+                    if res == _sx.CERTIFIED or res == _sx.UPDATED:
+                        # learn the final basis (make_basis: a fresh inverse, dual feasibility, conditioning, the
+                        # maps) and certify it for f with its checks, the test of a cache hit; where that does not
+                        # pass (already cached, rejected, or the updated inverse was off), the certificate from
+                        # scratch decides
+                        c2 = _learn(s, basic, status, f, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE, B2,
+                                    primal_tol, dual_tol, gap_rel, max_cond, nb, CW, qv, wb, T4, dvec, SB, SS,
+                                    SBinv, hits, pidx, npool, ws, bcols_buf, brows_buf, col_buf)
+                        good = False
+                        if c2 >= 0:
+                            p = pidx[s, c2]
+                            last[s] = c2
+                            counters[3] += 1
+                            if _check(CW[p], qv[s, c2], f, m):
+                                good = True
+                                w = _answer(CW[p], qv[s, c2], wb[s, c2], T4[p], SB[s, c2], SS[s, c2], f, LB[s],
+                                            UB[s], want_alpha, alpha_tmp, n, m)
+                        if not good:
+                            fresh = res == _sx.CERTIFIED
+                            if not fresh:
+                                _sx._basis_matrix(AT, basic, B)
+                                fresh = _sx._invert(B, Binv, M)
+                            if fresh:
+                                good, w = _sx._certify(AT, LB[s], UB[s], ACOL1[s], WSCALE[s], RSCALE[s], ABSB[s], f,
+                                                       basic, status, primal_tol, dual_tol, gap_rel, max_cond,
+                                                       alpha_tmp, want_alpha, B, Binv, y, d, sv, rhs, xB)
                         if good:
                             code = OK
                             counters[1] += 1
                             counters[2] += piv
-                            c2 = _learn(s, basic, status, f, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE, B2,
-                                        primal_tol, dual_tol, gap_rel, max_cond, nb, CW, qv, wb, T4, dvec, SB, SS,
-                                        SBinv, hits, bcols_buf, brows_buf, col_buf)
-                            if c2 >= 0:
-                                last[s] = c2
-                                counters[3] += 1
                 if code == FAILED:
                     counters[5] += 1
                     out_code[i, k] = FAILED
@@ -336,7 +372,12 @@ def _fused_solve(F, slots, unbounded, A3, LB, UB, ACOL1, FSCALE, WSCALE, RSCALE,
 
 
 class FusedStore:
-    """The compiled cache of one constraint matrix ``R`` (n x m): bases per slot (direction and bound vector)."""
+    """The compiled cache of one constraint matrix ``R`` (n x m): bases per slot (direction and bound vector).
+
+    A slot's bookkeeping (statuses, basic sets, dual bounds, hits: about 2 kB at 16 bases) is kept per slot; the
+    large maps of each basis (checks ``CW``, basic map ``T``, inverse: about 6.4 kB for s3m24) live in a pool shared
+    by the store's slots and are taken as bases are learned (``pidx``: a slot's pool entries), so memory grows with
+    the bases held, not with ``capacity`` times the slots (half of one participant's slots hold one to three)."""
 
     def __init__(self, R: np.ndarray, capacity: int = CAPACITY):
         self.R = np.ascontiguousarray(R, dtype=float)
@@ -346,16 +387,18 @@ class FusedStore:
         self.calls: dict[bytes, tuple] = {}       # recent calls' directions -> (b vectors, slots)
         self.S = 0
         self.counters = np.zeros(6, dtype=np.int64)
+        self.npool = np.zeros(1, dtype=np.int64)  # pool entries in use
+        self.pool: dict[str, np.ndarray] = {}
         self._alloc(8)
+        self._grow_pool(4 * self.C)
 
     def _alloc(self, cap: int) -> None:
         n, m, C = self.n, self.m, self.C
         shapes = {"A3": ((n, m + 1), float), "LB": ((m,), float), "UB": ((m,), float), "ACOL1": ((m + 1,), float),
                   "WSCALE": ((m,), float), "RSCALE": ((n, m), float), "ABSB": ((n,), float), "B2": ((n,), float),
-                  "unbounded": ((), np.bool_), "nb": ((), np.int64), "CW": ((C, 2 * n + 3, m), float),
-                  "qv": ((C,), np.int64), "wb": ((C,), np.bool_), "T4": ((C, n, m), float), "dvec": ((C, m), float),
-                  "SB": ((C, n), np.int64), "SS": ((C, m + 1), np.int8), "SBinv": ((C, n, n), float),
-                  "hits": ((C,), float), "last": ((), np.int64), "NFK": ((), np.int64),
+                  "unbounded": ((), np.bool_), "nb": ((), np.int64), "qv": ((C,), np.int64), "wb": ((C,), np.bool_),
+                  "dvec": ((C, m), float), "SB": ((C, n), np.int64), "SS": ((C, m + 1), np.int8),
+                  "hits": ((C,), float), "pidx": ((C,), np.int64), "last": ((), np.int64), "NFK": ((), np.int64),
                   "FK": ((FARKAS_CAPACITY, m), float)}
         old = getattr(self, "arrays", None)
         new = {}
@@ -368,6 +411,31 @@ class FusedStore:
             new[name] = a
         self.arrays = new
         self.cap = cap
+
+    def _grow_pool(self, size: int) -> None:
+        n, m = self.n, self.m
+        shapes = {"CW": (2 * n + 3, m), "T4": (n, m), "SBinv": (n, n)}
+        used = int(self.npool[0])
+        for name, shape in shapes.items():
+            a = np.empty((size,) + shape)
+            if used:
+                a[:used] = self.pool[name][:used]
+            self.pool[name] = a
+        self.pool_size = size
+
+    def _reserve(self, slots: np.ndarray, most: int) -> None:
+        """Make room in the pool for every basis the slots ``slots`` can still take in a call that learns at most
+        ``most`` per slot (``capacity`` less the bases each holds, at most ``most``), so that the compiled pass never
+        runs out of entries."""
+        us = np.unique(slots)
+        need = int(np.sum(np.minimum(self.C - self.arrays["nb"][us], most)))
+        if int(self.npool[0]) + need > self.pool_size:
+            self._grow_pool(max(self.pool_size + self.pool_size // 2, int(self.npool[0]) + need))
+
+    def _maps(self) -> tuple:
+        a, p = self.arrays, self.pool
+        return (a["nb"], p["CW"], a["qv"], a["wb"], p["T4"], a["dvec"], a["SB"], a["SS"], p["SBinv"], a["hits"],
+                a["pidx"], self.npool)
 
     def slot(self, b: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> int:
         """The slot of direction ``b = J^T u`` with activation bounds ``lb``, ``ub`` (made on first use)."""
@@ -411,11 +479,13 @@ class FusedStore:
         a = self.arrays
         n, m = self.n, self.m
         f = np.ascontiguousarray(f, dtype=float)
+        self._reserve(np.array([s]), most)
+        ws = _work(n, m)
         for bb in sorted(bases, key=lambda bb: -bb.hits)[:most]:
             _learn(s, np.asarray(bb.basic, dtype=np.int64), np.asarray(bb.status, dtype=np.int8), f, a["A3"], a["LB"],
                    a["UB"], a["ACOL1"], np.full(m, 1.0 / m), a["WSCALE"], a["RSCALE"], a["B2"], *self._tols,
-                   a["nb"], a["CW"], a["qv"], a["wb"], a["T4"], a["dvec"], a["SB"], a["SS"], a["SBinv"], a["hits"],
-                   np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64), np.empty(m + 1, dtype=np.int64))
+                   *self._maps(), ws, np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64),
+                   np.empty(m + 1, dtype=np.int64))
 
     def solve(self, F: np.ndarray, slots: np.ndarray, want_alpha: bool, max_iter: int, tols: tuple,
               zero_rel: float, decay: float):
@@ -426,10 +496,11 @@ class FusedStore:
         w = np.zeros((N, K))
         code = np.full((N, K), FAILED, dtype=np.int8)
         alpha = np.empty((N, K, self.m)) if want_alpha else np.empty((1, 1, self.m))
+        self._reserve(slots, N + 1)          # a first basis and one per row
         a = self.arrays
         self._tols = tuple(tols)
         _fused_solve(F, slots, a["unbounded"], a["A3"], a["LB"], a["UB"], a["ACOL1"], np.full(self.m, 1.0 / self.m),
-                     a["WSCALE"], a["RSCALE"], a["ABSB"], a["B2"], a["nb"], a["CW"], a["qv"], a["wb"], a["T4"],
-                     a["dvec"], a["SB"], a["SS"], a["SBinv"], a["hits"], a["last"], a["NFK"], a["FK"], int(max_iter),
-                     *tols, float(zero_rel), float(decay), bool(want_alpha), w, code, alpha, self.counters)
+                     a["WSCALE"], a["RSCALE"], a["ABSB"], a["B2"], *self._maps()[:10], a["pidx"], self.npool,
+                     a["last"], a["NFK"], a["FK"], int(max_iter), *tols, float(zero_rel), float(decay),
+                     bool(want_alpha), w, code, alpha, self.counters)
         return w, code, (alpha if want_alpha else None)

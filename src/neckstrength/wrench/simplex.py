@@ -38,6 +38,9 @@ REFACTOR = 16
 #: Result codes of :func:`solve_rows`.
 CERTIFIED, FAILED, INFEASIBLE_SUSPECT = 0, 1, 2
 
+#: Result of :func:`_dual_simplex` with ``confirm=False``: no bound violated with an updated (not fresh) inverse.
+UPDATED = 3
+
 #: Status codes of the basis arrays (as ``highspy.HighsBasisStatus``: kLower, kBasic, kUpper).
 LOWER, BASIC, UPPER = 0, 1, 2
 
@@ -271,13 +274,15 @@ def _certify(AT, lb, ub, Acol1, wscale, Rscale, absb, f, basic, status, primal_t
 
 @njit(cache=True, nogil=True, fastmath=_FM)
 def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, max_iter, primal_tol,
-                  B, Binv, M, lo, hi, ptol, isbasic, rhs, xB, y, rho, aq, col):
+                  B, Binv, M, lo, hi, ptol, isbasic, rhs, xB, y, rho, aq, col, confirm=True):
     """Bounded dual simplex from a dual feasible basis; updates ``basic``/``status`` in place.
 
     ``Binv0``: the (fresh) inverse of the starting basis matrix. Returns (code, pivots):
     ``CERTIFIED`` when no basic variable violates its bounds with a freshly computed inverse
     in ``Binv`` (the caller certifies), ``INFEASIBLE_SUSPECT`` when the ratio test finds no entering variable,
-    ``FAILED`` on a singular basis or the iteration limit.
+    ``FAILED`` on a singular basis or the iteration limit. With ``confirm=False``, ``UPDATED`` where no bound is
+    violated with the updated inverse (not rebuilt; ``Binv`` is then not fresh and the caller must verify the
+    basis from scratch, as :mod:`neckstrength.wrench.fused` does with ``make_basis``).
     """
     mp1, n = AT.shape
     m = mp1 - 1
@@ -345,6 +350,8 @@ def _dual_simplex(AT, lb, ub, Acol1, wscale, Rscale, f, basic, status, Binv0, ma
         if r < 0:
             if since == 0:
                 return CERTIFIED, it
+            if not confirm:
+                return UPDATED, it
             # optimal with an updated inverse: confirm with a fresh one
             _basis_matrix(AT, basic, B)
             if not _invert(B, Binv, M):
@@ -554,21 +561,34 @@ def make_basis(A, lb, ub, Acol1, fscale, wscale, Rscale, b, bcols, brows, col, f
     singular or ill-conditioned basis or one that is not dual feasible (``dual_tol`` relative to
     ``|y|_inf |A_j|_1``).
     """
+    n = A.shape[0]
+    return make_basis_ws(A, lb, ub, Acol1, fscale, wscale, Rscale, b, bcols, brows, col, f, primal_tol, dual_tol,
+                         gap_rel, max_cond, Binv, T, CW, dvec, np.empty((n, n)), np.empty((n, n)), np.empty(n),
+                         np.empty(A.shape[1]), np.empty(A.shape[1] - 1))
+
+
+@njit(cache=True, nogil=True)     # no fastmath, as make_basis
+def make_basis_ws(A, lb, ub, Acol1, fscale, wscale, Rscale, b, bcols, brows, col, f, primal_tol, dual_tol, gap_rel,
+                  max_cond, Binv, T, CW, dvec, B, M, y, d, s):
+    """:func:`make_basis` with its work arrays given (``B``, ``M``: n x n; ``y``: n; ``d``: m + 1; ``s``: m), for
+    callers that learn many bases (:mod:`neckstrength.wrench.fused`); the same arithmetic, so the same maps."""
     n, mp1 = A.shape
     m = mp1 - 1
     nb = bcols.shape[0]
-    B = np.zeros((n, n))
+    for k in range(n):
+        for i in range(n):
+            B[i, k] = 0.0
     for k in range(nb):
         for i in range(n):
             B[i, k] = A[i, bcols[k]]
     for k in range(brows.shape[0]):
         B[brows[k], nb + k] = -1.0
-    M = np.empty((n, n))
     if not _invert(B, Binv, M):
         return False, 0, False
     if not _conditioned(B, Binv, n, max_cond):
         return False, 0, False
-    y = np.zeros(n)
+    for i in range(n):
+        y[i] = 0.0
     for k in range(nb):
         if bcols[k] == m:
             for i in range(n):
@@ -576,7 +596,6 @@ def make_basis(A, lb, ub, Acol1, fscale, wscale, Rscale, b, bcols, brows, col, f
     ymax = 0.0
     for i in range(n):
         ymax = max(ymax, abs(y[i]))
-    d = np.empty(mp1)
     for j in range(mp1):
         t = 0.0
         for i in range(n):
@@ -596,17 +615,20 @@ def make_basis(A, lb, ub, Acol1, fscale, wscale, Rscale, b, bcols, brows, col, f
             return False, 0, False
     if col[m] == UPPER:
         return False, 0, False
-    s = np.empty(m)
     for j in range(m):
         s[j] = 0.0 if col[j] == BASIC else (ub[j] if col[j] == UPPER else lb[j])
+    # T[k, j] = sum_i Binv[k, i] * -(A[i, j] s_j), summed over i in order (the numpy reference's rounding); the
+    # loop over j innermost so that it vectorises
     for k in range(n):
         for j in range(m):
-            t = 0.0
-            for i in range(n):
-                t += Binv[k, i] * -(A[i, j] * s[j])
-            if not np.isfinite(t):
+            T[k, j] = 0.0
+        for i in range(n):
+            g = Binv[k, i]
+            for j in range(m):
+                T[k, j] += g * -(A[i, j] * s[j])
+        for j in range(m):
+            if not np.isfinite(T[k, j]):
                 return False, 0, False
-            T[k, j] = t
     q = 0
     for side in range(2):                               # lb_j f_j <= x_j <= ub_j f_j, lower rows first
         for k in range(nb):
