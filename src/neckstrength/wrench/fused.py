@@ -45,8 +45,10 @@ from neckstrength.wrench import simplex as _sx
 #: Result codes of :func:`_fused_solve` (per row and direction).
 OK, ZERO, INFEASIBLE, FAILED, UNBOUNDED = 0, 1, 2, 3, 4
 
-#: Bases kept per slot (direction and bound vector); the least recently hit is replaced.
-CAPACITY = 16
+#: Bases kept per slot (direction and bound vector); the least recently hit is replaced. With the pool (a slot's
+#: bases take memory as they are learned) 32 costs little: calibrated S003 1.04x less CPU than 16, the same results to
+#: 1e-6 (docs/benchmarks.md#gap-fused-learn-once).
+CAPACITY = 32
 
 #: Farkas certificates kept per slot.
 FARKAS_CAPACITY = 8
@@ -427,8 +429,7 @@ class FusedStore:
         """Make room in the pool for every basis the slots ``slots`` can still take in a call that learns at most
         ``most`` per slot (``capacity`` less the bases each holds, at most ``most``), so that the compiled pass never
         runs out of entries."""
-        us = np.unique(slots)
-        need = int(np.sum(np.minimum(self.C - self.arrays["nb"][us], most)))
+        need = int(np.minimum(self.C - self.arrays["nb"][slots], most).sum())     # a slot listed twice: counted twice
         if int(self.npool[0]) + need > self.pool_size:
             self._grow_pool(max(self.pool_size + self.pool_size // 2, int(self.npool[0]) + need))
 
