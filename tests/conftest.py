@@ -36,10 +36,16 @@ def workflow_test_files() -> set[str]:
     return {p.relative_to(ROOT).as_posix() for p in (ROOT / "tests").rglob("test_*.py") if pat.search(p.read_text())}
 
 
+#: Modules whose tests must run in one process: test_batched's last test counts the LPs its module compared with
+#: HiGHS in this session (>= 100,000)
+WHOLE_MODULES = frozenset({"tests/wrench/test_batched.py"})
+
+
 def pytest_xdist_make_scheduler(config, log):
     """With pytest-xdist and ``--dist loadgroup`` (test.sh: ``-n 2 --dist loadgroup``): every test of a module in
     :func:`workflow_test_files` runs in one worker, so the reduced pipeline is run once, as in a single process, and
-    no two processes run Snakemake in one workflow copy; every other test is its own unit, as with ``--dist load``.
+    no two processes run Snakemake in one workflow copy; each module of :data:`WHOLE_MODULES` runs in one worker;
+    every other test is its own unit, as with ``--dist load``.
     (Not the ``xdist_group`` mark: with pytest 9.2 xdist's group suffix on the node ids no longer takes effect.
     tests/test_imports.py checks that every test using these fixtures is in one of those modules.)"""
     if config.getvalue("dist") != "loadgroup":
@@ -50,7 +56,8 @@ def pytest_xdist_make_scheduler(config, log):
 
     class WorkflowInOneWorker(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            return "workflow" if nodeid.split("::", 1)[0] in files else nodeid
+            path = nodeid.split("::", 1)[0]
+            return "workflow" if path in files else path if path in WHOLE_MODULES else nodeid
 
     return WorkflowInOneWorker(config, log)
 

