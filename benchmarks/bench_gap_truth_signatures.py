@@ -38,15 +38,13 @@ def main(argv=None) -> dict:
     from neckstrength.config import build_directions, gap_context, load_config
     from neckstrength.gap import truths as T
     from neckstrength.gap.scatter import ScatterSettings, direction_sensitivity, scatter_test
-    from neckstrength.postures import load_posture_tables
     from neckstrength.postures.model import posture_full_model, reduce_in_posture
 
     t0 = time.perf_counter()
     cfg = load_config(a.config)
     model = cfg["gap"]["benchmark"]["model"]
     ctx = gap_context(cfg, model, build_directions(cfg))
-    setup = T.TruthSetup(ctx.full, ctx.model, ctx.directions, ctx.head_centre, ctx.tie_sides,
-                         load_posture_tables(cfg["data"]["model_dir"]))
+    setup = T.TruthSetup.of(ctx)
     fc = T.TruthForces(setup)
     m, full = setup.model, setup.full
     rng = np.random.default_rng(a.seed)

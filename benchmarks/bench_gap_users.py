@@ -117,7 +117,6 @@ def main(argv=None) -> dict:
     from neckstrength.gap.scoring import case_row, confusion, score_cases
     from neckstrength.gap.truths import CaseSettings, TruthSetup, describe, generate_truth_cases
     from neckstrength.io import atomic_write_csv, atomic_write_text
-    from neckstrength.postures import load_posture_tables
     from neckstrength.seeds import derive_rng
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -131,8 +130,7 @@ def main(argv=None) -> dict:
 
     cs = CaseSettings(replicates=a.replicates, controls=a.controls, rich_controls=a.rich_controls)
     ctx0, _, _ = settings_for(cfg, model, a.null_replicates, ())
-    setup = TruthSetup(ctx0.full, ctx0.model, ctx0.directions, ctx0.head_centre, ctx0.tie_sides,
-                       load_posture_tables(cfg["data"]["model_dir"]))
+    setup = TruthSetup.of(ctx0)
     stream = f"gap-users/{model}"
     cases = generate_truth_cases(setup, cs, derive_rng(cfg["seed"], stream), limit=a.limit)
     ctx, ds, effects = settings_for(cfg, model, a.null_replicates, [c.repeats_row() for c in cases], a.null_truth,

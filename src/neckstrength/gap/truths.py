@@ -73,6 +73,12 @@ class TruthSetup:
     tie_sides: bool = False
     postures: Mapping[str, object] = field(default_factory=dict)
 
+    @classmethod
+    def of(cls, ctx) -> "TruthSetup":
+        """The truths' set-up of a diagnosis context (:class:`neckstrength.gap.effects.GapContext`: its models,
+        directions, head centre, side tying and posture tables)."""
+        return cls(ctx.full, ctx.model, ctx.directions, ctx.head_centre, ctx.tie_sides, dict(ctx.postures or {}))
+
 
 @dataclass(frozen=True)
 class CaseSettings:
