@@ -48,15 +48,12 @@ def main(argv=None) -> dict:
     ap.add_argument("--seed", type=int, default=20261128)
     a = ap.parse_args(argv)
 
-    from neckstrength.config import build_directions, gap_context, load_config
+    from neckstrength.config import gap_truth_setup, load_config
     from neckstrength.gap import truths as T
     from neckstrength.gap.scatter import ScatterSettings, direction_sensitivity
 
     t0 = time.perf_counter()
-    cfg = load_config(a.config)
-    model = cfg["gap"]["benchmark"]["model"]
-    ctx = gap_context(cfg, model, build_directions(cfg))
-    setup = T.TruthSetup.of(ctx)
+    model, _, setup = gap_truth_setup(load_config(a.config))
     fc = T.TruthForces(setup)
     m = setup.model
     rng = np.random.default_rng(a.seed)

@@ -660,6 +660,16 @@ def gap_context(config: Mapping, model_name: str, directions: pd.DataFrame) -> G
                       _gap_posture_tables(config), 0.0, str(config.get("postures", {}).get("force_length", "relative")))
 
 
+def gap_truth_setup(config: Mapping, model_name: str | None = None):
+    """``(model name, diagnosis context, truths' set-up)`` for the gap benchmarks' truths: ``model_name`` or config
+    ``gap.benchmark.model``, on the config's test directions (:class:`neckstrength.gap.truths.TruthSetup`)."""
+    from neckstrength.gap.truths import TruthSetup
+
+    name = model_name or config["gap"]["benchmark"]["model"]
+    ctx = gap_context(config, name, build_directions(config))
+    return name, ctx, TruthSetup.of(ctx)
+
+
 def _gap_posture_tables(config: Mapping) -> dict | None:
     """The shipped posture tables (all seven: ``posture_drift`` drifts about every axis) for the gap diagnosis's
     ``posture_drift`` and the posture protocol; None when the model folder has none (the effect then does not
