@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from neckstrength.gap.calibrate import at_least
 from neckstrength.gap.scoring import score_cases
 
 RULES = ("maxT", "largest_improvement", "smallest_rms")
@@ -67,7 +68,7 @@ def redecide_statistic(inputs: dict, statistic: str, alpha: float) -> str:
         sd = np.maximum(dn.std(axis=0, ddof=1), floor)
         zo, zn = (d - mu) / sd, (dn - mu) / sd
     t_null = zn.max(axis=1)
-    p_of = (1 + (t_null[None, :] >= zo[:, None] - 1e-12).sum(axis=1)) / (len(t_null) + 1)
+    p_of = (1 + at_least(t_null[None, :], zo[:, None]).sum(axis=1)) / (len(t_null) + 1)
     best = int(np.argmax(zo))
     if p_of[best] > alpha or d[best] <= 0:
         return "none"
@@ -98,7 +99,7 @@ def redecide(inputs: dict, rule: str, alpha: float) -> str:
     delta = gap[0] - gap[1:]
     z = (delta - np.asarray(inputs["mu"], float)) / np.asarray(inputs["sd"], float)
     t_null = np.asarray(inputs["t_null"], float)
-    p_of = (1 + (t_null[None, :] >= z[:, None] - 1e-12).sum(axis=1)) / (len(t_null) + 1)
+    p_of = (1 + at_least(t_null[None, :], z[:, None]).sum(axis=1)) / (len(t_null) + 1)
     best = int(np.argmax(z))
     if p_of[best] > alpha or delta[best] <= 0:
         return "none"

@@ -39,6 +39,17 @@ def test_maxt_adjusted_p_value_counts_null_maxima():
     assert np.allclose(p, [2 / 5, 1 / 5, 5 / 5])           # (1 + #{T_null >= T}) / (R + 1)
 
 
+def test_ties_at_rounding_level_count_as_exceeding():
+    # a data set where no effect improves has T = max(-mu / sd), the value of every replicate where none improves
+    # either: fits' rounding (1e-10) must not decide those ties (the conservative p counts them)
+    mu, sd = np.array([0.003, 0.001]), np.array([0.002, 0.004])
+    tie = float(np.max(-mu / sd))
+    t_null = np.array([tie * (1 + 1e-10), tie * (1 - 1e-10), tie, 5.0])
+    _, _, t, p = cb.maxt(np.zeros((1, 2)), mu, sd, t_null)
+    assert t[0] == tie and p[0] == 5 / 5                  # all four replicates at least as large
+    assert not cb.at_least(np.array([tie - 1e-6]), tie)[0]    # a real difference is not a tie
+
+
 def test_plane_structure_is_scale_free_and_sees_a_plane_offset():
     X = np.array([[1, 0], [1, 0], [0, 1], [0, 1]], float)
     r = np.array([[0.1, 0.1, -0.1, -0.1], [0.1, -0.1, 0.1, -0.1]])

@@ -150,11 +150,24 @@ def size_theta(e: Effect, u: float, sign: int) -> np.ndarray:
     return np.array(th)
 
 
+#: Ties of an observed statistic with a noise-only replicate's, within this share of the statistic's size (at least
+#: 1), count as the replicate's exceeding it (the conservative Monte Carlo p-value). A data set where no effect
+#: improves anything has T = max_e(-mu_e / sd_e), exactly the value of every replicate where none improves either;
+#: with an absolute 1e-12 the fits' rounding (1e-10) decided those ties, so a solver change moved a p-value by 0.2.
+TIE_REL = 1e-9
+
+
+def at_least(null: np.ndarray, obs) -> np.ndarray:
+    """``null >= obs`` with ties within :data:`TIE_REL` counted (broadcasting as numpy does)."""
+    obs = np.asarray(obs, float)
+    return null >= obs - TIE_REL * np.maximum(1.0, np.abs(obs))
+
+
 def maxt(delta: np.ndarray, mu: np.ndarray, sd: np.ndarray, t_null: np.ndarray):
     """Standardised improvements z (n x E), the best effect per row, T = max z and its adjusted p-value."""
     z = (delta - mu[None]) / sd[None]
     t = z.max(axis=1)
-    p = (1 + (t_null[None, :] >= t[:, None] - 1e-12).sum(axis=1)) / (len(t_null) + 1)
+    p = (1 + at_least(t_null[None, :], t[:, None]).sum(axis=1)) / (len(t_null) + 1)
     return z, z.argmax(axis=1), t, p
 
 
@@ -197,9 +210,9 @@ class Calibration:
         delta = gap[0] - gap[1:]
         z, best, t, p_adj = maxt(delta[None], self.mu, self.sd, self.t_null)
         R = len(self.delta_null)
-        p_raw = (1 + (self.delta_null >= delta[None] - 1e-12).sum(axis=0)) / (R + 1)
+        p_raw = (1 + at_least(self.delta_null, delta[None]).sum(axis=0)) / (R + 1)
         b = int(best[0])
-        p_each = (1 + (self.t_null[None, :] >= z[0][:, None] - 1e-12).sum(axis=1)) / (len(self.t_null) + 1)
+        p_each = (1 + at_least(self.t_null[None, :], z[0][:, None]).sum(axis=1)) / (len(self.t_null) + 1)
         if self.selection == "largest_improvement":
             ok = np.flatnonzero((p_each <= self.alpha) & (delta > 0))
             if ok.size:
@@ -212,8 +225,8 @@ class Calibration:
     def remainder(self, j: int, gap: float, structure: float) -> dict:
         """Tests of candidate ``j`` (0 = none)'s remaining held-out gap against the same null."""
         R = len(self.gap_null)
-        p_s = (1 + (self.structure_null[:, j] >= structure - 1e-12).sum()) / (R + 1)
-        p_g = ((1 + (self.gap_null[:, j] >= gap - 1e-12).sum()) / (R + 1)) if self.noise_source != "heldout" \
+        p_s = (1 + at_least(self.structure_null[:, j], structure).sum()) / (R + 1)
+        p_g = ((1 + at_least(self.gap_null[:, j], gap).sum()) / (R + 1)) if self.noise_source != "heldout" \
             else np.nan
         return {"p_structure": float(p_s), "p_gap": float(p_g)}
 
