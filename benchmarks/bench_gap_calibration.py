@@ -65,7 +65,7 @@ def main(argv=None) -> dict:
     from neckstrength.config import build_directions, diagnosis_settings, gap_blind_dataset, gap_context, load_config
     from neckstrength.gap.calibrate import calibrate
     from neckstrength.gap.effects import available_effects
-    from neckstrength.gap.engine import _Engine, direction_folds
+    from neckstrength.gap.engine import Engine, direction_folds
     from neckstrength.seeds import derive_rng
     from neckstrength.wrench.batched import single_threaded_blas
 
@@ -82,7 +82,7 @@ def main(argv=None) -> dict:
                                        sensitivity=cal.sensitivity and not a.no_sensitivity))
     effects = available_effects(ctx, s.effects)
     folds = direction_folds(ctx.K, s.folds, derive_rng(s.seed, f"gap/folds/{data.name}"))[None, :]
-    eng = _Engine(ctx, [data], s, folds, {e.name: e for e in effects})
+    eng = Engine(ctx, [data], s, folds, {e.name: e for e in effects})
     with single_threaded_blas():
         eng.evaluate((), eng.prior)
     pf = [int(np.nonzero((eng.pds == 0) & (eng.pfold < 0))[0][0])]

@@ -369,7 +369,7 @@ def test_one_step_folds_start_at_the_all_direction_fit_and_never_raise_their_tra
     # its data set's all-direction fit on the fold's own training loss; the kept point is never worse on that loss
     # than the all-direction fit itself, and the held-out predictions move away from the all-direction fit's
     from neckstrength.gap.effects import available_effects
-    from neckstrength.gap.engine import _Engine, _train_loss, direction_folds
+    from neckstrength.gap.engine import Engine, _train_loss, direction_folds
     from neckstrength.seeds import derive_rng
 
     ctx = ctx_s3
@@ -377,7 +377,7 @@ def test_one_step_folds_start_at_the_all_direction_fit_and_never_raise_their_tra
     folds = np.array([direction_folds(ctx.K, 5, derive_rng(1, f"gap/folds/{d.name}")) for d in data])
     s = dg.DiagnosisSettings(effects=("asymmetry",), grid_points=3, folds=5, pairs_top=0, starts=1,
                              fit=FitSettings(max_iter=8), seed=1)
-    eng = _Engine(ctx, data, s, folds, {e.name: e for e in available_effects(ctx, s.effects)}, full=True)
+    eng = Engine(ctx, data, s, folds, {e.name: e for e in available_effects(ctx, s.effects)}, full=True)
     for key in ((), eng.key([("asymmetry", np.array([0.5]))])):
         warm = eng.prior if key == () else eng.results[()]["phi"]
         res = eng.evaluate_one_step(key, warm)
@@ -393,7 +393,7 @@ def test_one_step_folds_start_at_the_all_direction_fit_and_never_raise_their_tra
             moved += not np.allclose(res["forces"][q][held], res["forces"][f][held], rtol=1e-6)
         assert moved >= 0.8 * (eng.pfold >= 0).sum()
     with pytest.raises(ValueError, match="all-direction"):
-        _Engine(ctx, data, s, folds, {}, full=False).evaluate_one_step((), eng.prior[:15])
+        Engine(ctx, data, s, folds, {}, full=False).evaluate_one_step((), eng.prior[:15])
 
 
 @pytest.mark.parametrize("cv", ["refit", "one_step"])
@@ -477,7 +477,7 @@ def test_direction_tolerance_fits_of_a_data_set_do_not_depend_on_the_batch(model
     # batch of 22). Each data set has its own set now: the same fits alone and in a batch, in any order. The exact
     # window (whose refreshes add candidates per data set) on p2m7: on s3m24 its fits take minutes here
     from neckstrength.gap.effects import EFFECTS
-    from neckstrength.gap.engine import _Engine, direction_folds
+    from neckstrength.gap.engine import Engine, direction_folds
     from neckstrength.seeds import derive_rng
 
     ctx = request.getfixturevalue("ctx_s3" if model == "s3m24" else "ctx_p2")
@@ -491,7 +491,7 @@ def test_direction_tolerance_fits_of_a_data_set_do_not_depend_on_the_batch(model
     eff = {"direction_tolerance": EFFECTS["direction_tolerance"](ctx, method=method)}
 
     def fit(order):
-        eng = _Engine(ctx, [data[i] for i in order], s, folds[order], eff, full=one_step)
+        eng = Engine(ctx, [data[i] for i in order], s, folds[order], eff, full=one_step)
         key = eng.key([("direction_tolerance", np.array([1.0]))])
         if one_step:
             eng.evaluate_one_step((), eng.prior, 1)

@@ -14,7 +14,7 @@ alike, in one batch: the base model and every single effect on its grid, fitted 
 the calibration's ``starts`` and ``max_iter`` on the data set's fold split, each fold choosing its grid point by
 training loss, scored by the held-out gap ``1 - D_cv``. With ``cv`` 'one_step' (the config's default) the folds are
 not refitted: each takes guarded Gauss-Newton step(s) from the data set's all-direction fit
-(:meth:`neckstrength.gap.engine._Engine.evaluate_one_step`; approximate CV, valid here because the null and the
+(:meth:`neckstrength.gap.engine.Engine.evaluate_one_step`; approximate CV, valid here because the null and the
 power data sets are screened the same way). The decision uses the measured data set's screen scores,
 so that its statistic and the null's come from the same procedure (fitting the simulated data from their truth,
 or with other settings than the data, would make the test anti-conservative: an effect would "improve" the
@@ -64,8 +64,8 @@ from neckstrength.gap.engine import (
     BlindData,
     CalibrationSettings,
     DiagnosisSettings,
+    Engine,
     _d,
-    _Engine,
     cv_predictions,
     direction_folds,
     single_effect_grids,
@@ -125,7 +125,7 @@ def screen(ctx: GapContext, data: list[BlindData], folds: np.ndarray, effects: l
     s2 = DiagnosisSettings(**{**s.__dict__, "starts": cs.starts,
                               "fit": FitSettings(**{**s.fit.__dict__, "max_iter": cs.max_iter})})
     one = int(cs.cv_steps) if cs.cv == "one_step" else 0
-    eng = _Engine(ctx, data, s2, folds, {e.name: e for e in effects}, full=bool(one))
+    eng = Engine(ctx, data, s2, folds, {e.name: e for e in effects}, full=bool(one))
     if one:
         eng.evaluate_one_step((), eng.prior, one)
     else:

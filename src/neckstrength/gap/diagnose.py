@@ -45,9 +45,9 @@ from neckstrength.gap.effects import Effect, GapContext, available_effects, effe
 from neckstrength.gap.engine import (  # noqa: F401  (BlindData, DiagnosisSettings, direction_folds: public here too)
     BlindData,
     DiagnosisSettings,
+    Engine,
     _cv_predictions,
     _d,
-    _Engine,
     _selection,
     cv_predictions,
     direction_folds,
@@ -81,7 +81,7 @@ class DatasetDiagnosis:
 
 
 
-def _refine(engine: _Engine, effs: list[Effect], start: list[tuple], iters: int, datasets: set[int],
+def _refine(engine: Engine, effs: list[Effect], start: list[tuple], iters: int, datasets: set[int],
             starts: int = 1) -> list[tuple]:
     """Local pattern search on the effect parameters of the all-direction problems of ``datasets``.
 
@@ -332,7 +332,7 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
     folds = np.array([direction_folds(K, s.folds, derive_rng(s.seed, f"gap/folds/{n}")) for n in names]
                      ).reshape(len(data), K)
     effects = available_effects(ctx, s.effects)
-    eng = _Engine(ctx, data, s, folds, {e.name: e for e in effects})
+    eng = Engine(ctx, data, s, folds, {e.name: e for e in effects})
     say(f"{len(data)} data set(s), {K} directions, {eng.F} folds, {eng.P} fitting problems; effects: "
         f"{', '.join(e.name for e in effects)}")
     # ---- base model
@@ -388,13 +388,13 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
     return out
 
 
-def _scores_for(eng: _Engine, keys_per_problem: list[list[tuple]]) -> tuple[list[tuple], list[np.ndarray]]:
+def _scores_for(eng: Engine, keys_per_problem: list[list[tuple]]) -> tuple[list[tuple], list[np.ndarray]]:
     """A candidate's chosen key per problem (lowest training loss) and each data set's held-out predictions."""
     chosen = _selection(eng, keys_per_problem)
     return chosen, [_cv_predictions(eng, chosen, i) for i in range(eng.nd)]
 
 
-def _pairs_and_refinement(eng: _Engine, cand_keys, per_problem, selections, cv_pred, cand_params, cand_datasets,
+def _pairs_and_refinement(eng: Engine, cand_keys, per_problem, selections, cv_pred, cand_params, cand_datasets,
                           say) -> dict[str, list[tuple]]:
     """Pairs of the best single effects (per data set, different families) on the product of their best grid
     points, then the pattern-search refinement of every candidate's all-direction fits; adds the pairs to the
@@ -489,7 +489,7 @@ def _verdict_word(unexplained: bool | None) -> str:
     return "not testable" if unexplained is None else "not explained" if unexplained else "consistent with noise"
 
 
-def _dataset_result(eng: _Engine, i: int, dat: BlindData, cand_datasets, cand_params, selections, refined,
+def _dataset_result(eng: Engine, i: int, dat: BlindData, cand_datasets, cand_params, selections, refined,
                     cv_pred, cal=None, singles=("none",)) -> DatasetDiagnosis:
     ctx, s = eng.ctx, eng.s
     K = ctx.K
@@ -692,7 +692,7 @@ def _aim_scatter(ctx: GapContext, name: str, f_fit: np.ndarray, logres_chosen: n
     return out
 
 
-def _protocol_advice(eng: _Engine, cal, pws: pd.DataFrame):
+def _protocol_advice(eng: Engine, cal, pws: pd.DataFrame):
     """Power per protocol (:mod:`neckstrength.gap.protocols`) of the calibration's effects at its noise and base
     fit, its efficiency fitted to the calibration's simulated power, and the advice lines."""
     from dataclasses import replace as _replace

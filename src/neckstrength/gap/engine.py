@@ -118,7 +118,7 @@ def _key(pairs: Sequence[tuple[str, np.ndarray]], registry: dict | None = None) 
     return tuple(sorted(out))
 
 
-class _Engine:
+class Engine:
     """Fits of every (effect combination, parameter) key for all problems; results cached by key."""
 
     def __init__(self, ctx: GapContext, data: Sequence[BlindData], s: DiagnosisSettings, folds: np.ndarray,
@@ -334,11 +334,11 @@ def grid_cost(e: Effect, grid_points: int) -> float:
     return len(e.grid(grid_points)) * _GRID_COST.get(e.name, 1.0)
 
 
-def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: str = "",
+def single_effect_grids(eng: Engine, effects: Sequence[Effect], say=None, tag: str = "",
                         one_step: int = 0, workers: int = 1, checkpoints=None) -> dict[str, list[tuple]]:
     """Fit every problem at every grid point of every effect (each grid point warm-started from the fits at
     the nearest point already done); returns the keys per candidate ('none' and each effect). ``one_step``
-    > 0: the folds by :meth:`_Engine.evaluate_one_step` with that many steps. ``workers`` > 1: the effects are
+    > 0: the folds by :meth:`Engine.evaluate_one_step` with that many steps. ``workers`` > 1: the effects are
     fitted in that many forked processes, one effect at a time each, the most expensive first (a process that
     is done takes the next one, so the processes end together whatever the effects really cost); each effect's
     fits depend only on the base model's and its own, so the results are the same. ``checkpoints``
@@ -392,7 +392,7 @@ def single_effect_grids(eng: _Engine, effects: Sequence[Effect], say=None, tag: 
     return {"none": [()], **{e.name: mine[e.name] for e in effects}}
 
 
-def _grids(eng: _Engine, effects: Sequence[Effect], one_step: int) -> dict[str, list[tuple]]:
+def _grids(eng: Engine, effects: Sequence[Effect], one_step: int) -> dict[str, list[tuple]]:
     """:func:`single_effect_grids` in this process, without checkpoints or messages."""
     cand_keys: dict[str, list[tuple]] = {}
     for e in effects:
@@ -411,7 +411,7 @@ def _grids(eng: _Engine, effects: Sequence[Effect], one_step: int) -> dict[str, 
     return cand_keys
 
 
-def cv_predictions(eng: _Engine, keys: list[tuple]) -> np.ndarray:
+def cv_predictions(eng: Engine, keys: list[tuple]) -> np.ndarray:
     """(data sets x K) held-out predictions of a candidate whose grid is ``keys`` (per problem the key with the
     lowest training loss)."""
     chosen = _selection(eng, [keys] * eng.P)
@@ -427,7 +427,7 @@ def _d(forces: np.ndarray, T: np.ndarray, eps: float) -> np.ndarray:
     return data_discrepancy(forces, T, eps)
 
 
-def _selection(engine: _Engine, keys_per_problem: list[list[tuple]]) -> list[tuple]:
+def _selection(engine: Engine, keys_per_problem: list[list[tuple]]) -> list[tuple]:
     """Per problem, the key with the lowest training loss among its candidate keys."""
     out = []
     for p, keys in enumerate(keys_per_problem):
@@ -436,7 +436,7 @@ def _selection(engine: _Engine, keys_per_problem: list[list[tuple]]) -> list[tup
     return out
 
 
-def _cv_predictions(engine: _Engine, chosen: list[tuple], i: int) -> np.ndarray:
+def _cv_predictions(engine: Engine, chosen: list[tuple], i: int) -> np.ndarray:
     """Held-out prediction of every direction of data set ``i`` from its fold's chosen key."""
     K = engine.ctx.K
     pred = np.full(K, np.nan)
