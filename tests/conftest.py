@@ -97,6 +97,19 @@ def ci_report(repo_copy, ci_pipeline):
     return repo_copy
 
 
+@pytest.fixture
+def figures(monkeypatch):
+    """The figures the plotting functions would close, kept open for inspection (closed after the test)."""
+    import matplotlib.pyplot as plt
+
+    kept = []
+    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
+    yield kept
+    monkeypatch.undo()
+    for fig in kept:
+        plt.close(fig)
+
+
 @pytest.fixture(scope="session")
 def p2m7_full_config():
     """(full config, p2m7 model, the 25 test directions), built from the repository root."""

@@ -19,17 +19,6 @@ matplotlib.use("Agg")
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture
-def figures(monkeypatch):
-    """The figures the plotting functions would close, kept open for inspection."""
-    kept = []
-    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
-    yield kept
-    monkeypatch.undo()
-    for fig in kept:
-        plt.close(fig)
-
-
 def _overlaps(fig) -> list[str]:
     """Legends whose box overlaps the box of a visible axes (its plotting area)."""
     fig.canvas.draw()

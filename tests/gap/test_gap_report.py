@@ -6,10 +6,8 @@ import re
 from pathlib import Path
 from types import SimpleNamespace
 
-import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
-import pytest
 
 import neckstrength.gap.diagnose as dg
 from neckstrength.gap.report import ranking_note, write_report
@@ -120,16 +118,6 @@ def test_where_and_remainder_say_what_they_are_computed_from(directions, tmp_pat
     assert "prefers the pair `asymmetry+kinematic` (0.90; `asymmetry` alone 0.10)" in which
 
 
-@pytest.fixture
-def kept(monkeypatch):
-    figs = []
-    monkeypatch.setattr(plt, "close", lambda fig=None: figs.append(fig))
-    yield figs
-    monkeypatch.undo()
-    for f in figs:
-        plt.close(f)
-
-
 def _write(diag, directions, out, a3=None):
     inputs = SimpleNamespace(directions=directions, a3=a3, data=SimpleNamespace(name=diag.name), extra_trials=None,
                              settings_text="-")
@@ -148,11 +136,11 @@ def _declared_outputs(rule: str) -> list[str]:
     return re.findall(r"^        (\w+)=", block, flags=re.M)
 
 
-def test_no_activation_data_gives_the_prediction_of_the_groups_or_of_the_muscles(directions, tmp_path, kept):
+def test_no_activation_data_gives_the_prediction_of_the_groups_or_of_the_muscles(directions, tmp_path, figures):
     # without Table A.3 the activation figure shows the model's prediction (two curves with values), not a text
     # placeholder, and the report links it under its own heading
     text = _write(_diagnosis(directions), directions, tmp_path / "pred")
-    fig = next(f for f in kept if f._suptitle is None and "Predicted activation" in f.axes[0].get_title())
+    fig = next(f for f in figures if f._suptitle is None and "Predicted activation" in f.axes[0].get_title())
     lines = [ln for ln in fig.axes[0].get_lines() if np.isfinite(ln.get_ydata()).any()]
     assert len(lines) == 2 and fig.axes[0].get_xlabel() and fig.axes[0].get_ylabel()
     assert "## Predicted activation\n" in text and "![activation](fig_activation.png)" in text
@@ -163,7 +151,7 @@ def test_no_activation_data_gives_the_prediction_of_the_groups_or_of_the_muscles
     out = tmp_path / "none"
     text = _write(_diagnosis(directions, activations=False), directions, out)
     assert all((out / f"{k}.png").exists() for k in declared), [k for k in declared if not (out / f"{k}.png").exists()]
-    fig = next(f for f in kept if "by muscle group" in f.axes[0].get_title())
+    fig = next(f for f in figures if "by muscle group" in f.axes[0].get_title())
     heights = [b.get_height() for b in fig.axes[0].patches]
     assert np.allclose(heights, 3.0 / len(directions))      # activation_sum / directions, per group
     assert [t.get_text() for t in fig.axes[0].get_xticklabels()] == ["SCM-R", "SCM-L"]
