@@ -1,0 +1,75 @@
+"""benchmarks/bench_gap_oracle.py: the Bayes oracle that knows the strengths (issue 32)."""
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+
+CONFIG = str(Path(__file__).resolve().parents[2] / "config" / "config.yaml")
+
+
+@pytest.fixture(scope="module")
+def oracle_mod():
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_gap_oracle.py"
+    spec = importlib.util.spec_from_file_location("bench_gap_oracle", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_gaussian_and_grid_helpers(oracle_mod):
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(5, 5))
+    cov = A @ A.T + np.eye(5)
+    y, mu = rng.normal(size=5), rng.normal(size=(3, 5))
+    got = oracle_mod.Oracle._gauss(y, mu, cov)
+    want = [stats.multivariate_normal.logpdf(y, m, cov) for m in mu]
+    assert np.allclose(got, want)
+    g = oracle_mod._grid(0.3, 0.7, 4, True)
+    assert np.allclose(g, [-0.35, -0.45, -0.55, -0.65, 0.35, 0.45, 0.55, 0.65])
+    s = oracle_mod._sphere(50, False)
+    assert np.allclose(np.linalg.norm(s, axis=1), 1) and abs(s[:, 2].mean()) < 0.05
+
+
+def test_oracle_runs_on_the_user_design_and_reports_posteriors(oracle_mod, tmp_path):
+    """Three cases of the user benchmark's design (small draw counts): a row per case and strength SD, posteriors
+    that sum to one, the cases' truths as the user benchmark names them, and an OUT that is not overwritten."""
+    out = oracle_mod.main(["--config", CONFIG, "--out", str(tmp_path), "--limit", "3", "--directions", "4", "--element-draws", "30",
+                           "--strength-sd", "0,0.3"])
+    rows = out["rows"]
+    assert len(rows) == 6 and set(rows.strength_sd) == {0.0, 0.3}
+    post = rows[[c for c in rows if c.startswith("post_")]].to_numpy()
+    assert np.allclose(post.sum(axis=1), 1.0)
+    assert list(rows.case.unique()) == ["u001", "u002", "u003"]
+    assert rows.truth.iloc[0] == "none"
+    # a known-strengths oracle names the base-model control's truth, whose forces are the base model's plus noise
+    known = rows[(rows.case == "u001") & (rows.strength_sd == 0)].iloc[0]
+    assert known.map_target == "none"
+    assert (tmp_path / "oracle_scores.csv").exists()
+    with pytest.raises(SystemExit, match="--force"):
+        oracle_mod.main(["--config", CONFIG, "--out", str(tmp_path), "--limit", "1"])
+
+
+def test_plug_in_fit_matches_the_forces_at_least_as_well_as_the_truth(oracle_mod):
+    """``--plug-in``'s base-model fit: on a base-model control (forces of the base model plus noise) its residual is
+    no larger than that of the true strengths (it is the most probable fit under a broad prior), and its forces are
+    the base model's."""
+    from neckstrength.gap.truths import CaseSettings, generate_truth_cases
+    from neckstrength.seeds import derive_rng
+
+    cs = CaseSettings(replicates=15, controls=30, rich_controls=10)
+    oracle_mod._init(CONFIG, "s3m24", cs, (1,), 4, 30)
+    orc = oracle_mod._W["oracles"][1]
+    case = generate_truth_cases(orc.setup, cs, derive_rng(oracle_mod._W["seed"], "gap-users/s3m24"), limit=1)[0]
+    assert case.truth == "none"
+    y = np.log(case.forces) - orc.z_mean * case.noise
+    fit = orc.fit_base(np.log(case.forces), case.noise)
+
+    def rms(f):
+        return float(np.sqrt(np.mean((y - np.log(orc.fc.base(f))) ** 2)))
+
+    assert rms(fit) <= rms(case.strengths) + 1e-3
+    assert rms(fit) < 2 * case.noise
