@@ -187,6 +187,55 @@ class Oracle:
         return out
 
 
+class DiagnosisFamilies(Oracle):
+    """The same Bayes observer with the **diagnosis's own candidates** instead of the truths' families: each effect
+    of ``effects`` (:mod:`neckstrength.gap.effects`, its forward model through :class:`neckstrength.gap.fit.Simulator`)
+    averaged over its screen grid (``Effect.grid(n_grid)`` without the neutral point); ``direction_scatter`` as the
+    diagnosis's aiming-scatter model (:mod:`neckstrength.gap.scatter`: extra variance ``v_k c^2 / (2 a^2)`` per test,
+    ``c`` over ``scatter_cones`` deg); "no effect" as the base model alone and the base model with the element
+    null's finer structure (:class:`neckstrength.gap.calibrate.ElementNull`, its mean and covariance over
+    ``element_draws`` draws at ``element_spread``). Nothing here comes from the truths' code but the fit's noise
+    model (largest of the trials)."""
+
+    def __init__(self, setup, cs, ctx, effects, n_grid: int = 17, scatter_cones=(4.0, 8.0, 12.0, 16.0, 20.0),
+                 element_spread: float = 0.3, element_draws: int = 200):
+        super().__init__(setup, cs, 1, 1, element_draws)
+        from neckstrength.gap.calibrate import ElementNull
+        from neckstrength.gap.effects import available_effects, base_instance, compose
+        from neckstrength.gap.fit import Simulator
+
+        self.ctx = ctx
+        self.base_sim = Simulator(ctx, base_instance(ctx))
+        self.sims = {e.name: [Simulator(ctx, compose(ctx, [e], [th])) for th in e.grid(n_grid)[1:]]
+                     for e in available_effects(ctx, effects)}
+        self.enull = ElementNull(ctx, element_spread)
+        self.cones = np.radians(np.asarray(scatter_cones, float))
+
+    def signatures(self, f: np.ndarray, rng: np.random.Generator):
+        from neckstrength.gap.scatter import ScatterSettings, direction_sensitivity
+
+        K = len(self.fc.N)
+        zero = np.zeros((K, K))
+        F = np.asarray(f, float)[None, :]
+        lb = np.log(self.base_sim.forces(F)[0])
+        out = {"none": [(lb[None, :], zero)]}
+        for name, sims in self.sims.items():
+            with np.errstate(divide="ignore"):
+                rows = np.log(np.array([sim.forces(F)[0] for sim in sims]))
+            rows = rows[np.all(np.isfinite(rows), axis=1)]
+            if len(rows):
+                out[name] = [(rows, zero)]
+        ss = ScatterSettings()
+        v = direction_sensitivity(self.ctx.model, f, self.fc.P, self.fc.N, ss)
+        a = np.radians(ss.ring_deg)
+        out["direction_scatter"] = [(lb[None, :], np.diag(v * c ** 2 / (2 * a ** 2))) for c in self.cones]
+        d = np.log(np.maximum(self.enull.forces(np.repeat(F, self.element_draws, axis=0),
+                                                self.enull.factors(self.element_draws, rng)), 1e-300)) - lb
+        d = d[np.all(np.isfinite(d) & (d > -20), axis=1)]
+        out["none_elements"] = [((lb + d.mean(axis=0))[None, :], np.cov(d.T))]
+        return out
+
+
 def score(rows: pd.DataFrame, thresholds) -> pd.DataFrame:
     """Named correctly (detectable effect cases) and false alarms (controls) per decision rule, Wilson 95%."""
     from neckstrength.gap.scoring import wilson_interval
@@ -216,7 +265,7 @@ def score(rows: pd.DataFrame, thresholds) -> pd.DataFrame:
 _W = {}
 
 
-def _init(cfg_path, model, cs, scales, directions, element_draws):
+def _init(cfg_path, model, cs, scales, directions, element_draws, families: str = "truths"):
     import sys
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -225,8 +274,13 @@ def _init(cfg_path, model, cs, scales, directions, element_draws):
     from neckstrength.gap.truths import TruthSetup
 
     cfg = load_config(cfg_path)
-    setup = TruthSetup.of(settings_for(cfg, model, 1, ())[0])
-    _W.update(seed=cfg["seed"], oracles={k: Oracle(setup, cs, k, directions, element_draws) for k in scales})
+    ctx, _, effects = settings_for(cfg, model, 1, ())
+    setup = TruthSetup.of(ctx)
+    if families == "diagnosis":
+        oracles = {1: DiagnosisFamilies(setup, cs, ctx, effects)}
+    else:
+        oracles = {k: Oracle(setup, cs, k, directions, element_draws) for k in scales}
+    _W.update(seed=cfg["seed"], oracles=oracles, setup=setup)
 
 
 def _one(job):
@@ -263,6 +317,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--thresholds", default="0.2,0.05", help="stricter rules: P(no effect) below these")
     ap.add_argument("--plug-in", action="store_true", help="the strengths of the base model fitted to the case's "
                     "forces instead of the true ones (the oracle then knows only the effect families and priors)")
+    ap.add_argument("--seed", type=int, default=None, help="the design's seed (default: the config's, as the user "
+                    "benchmark; e.g. 20261128 for its fresh design)")
+    ap.add_argument("--noise", choices=("true", "measured"), default="true",
+                    help="the noise level the observer uses: the case's true one, or the pooled log SD of its trials "
+                    "(what the diagnosis is given)")
+    ap.add_argument("--families", choices=("truths", "diagnosis"), default="truths",
+                    help="the truths' own families (default) or the diagnosis's candidates, aiming-scatter model and "
+                    "element null")
     ap.add_argument("--check", action="store_true", help="also with every grid and draw count doubled")
     ap.add_argument("--jobs", type=int, default=1, help="processes")
     ap.add_argument("--force", action="store_true", help="replace the files of an OUT this script wrote before")
@@ -282,23 +344,43 @@ def main(argv=None) -> dict:
     cs = CaseSettings(replicates=a.replicates, controls=a.controls, rich_controls=a.rich_controls)
     scales = (1, 2) if a.check else (1,)
     sds = [float(x) for x in a.strength_sd.split(",") if x]
-    _init(a.config, model, cs, scales, a.directions, a.element_draws)
-    setup = _W["oracles"][1].setup
+    if a.families == "diagnosis":
+        scales = (1,)
+    _init(a.config, model, cs, scales, a.directions, a.element_draws, a.families)
+    seed = cfg["seed"] if a.seed is None else a.seed
+    _W["seed"] = seed
+    setup = _W["setup"]
     stream = f"gap-users/{model}"
-    cases = generate_truth_cases(setup, cs, derive_rng(cfg["seed"], stream), limit=a.limit)
+    cases = generate_truth_cases(setup, cs, derive_rng(seed, stream), limit=a.limit)
     det = None
     if a.cases:
         ref = pd.read_csv(a.cases).set_index("case")
         det = {}
         for c in cases:
             if c.name in ref.index:
-                if ref.loc[c.name, "truth"] != c.truth or ref.loc[c.name, "truth_params"] != describe(c.truth, c.params):
+                theirs = (ref.loc[c.name, "truth"], ref.loc[c.name, "truth_params"])
+                if theirs != (c.truth, describe(c.truth, c.params)):
                     raise SystemExit(f"{a.cases}: case {c.name} is not this design's ({ref.loc[c.name, 'truth']}, "
                                      f"{ref.loc[c.name, 'truth_params']} vs {c.truth}, {describe(c.truth, c.params)})")
                 det[c.name] = bool(ref.loc[c.name, "detectable"])
-    counts = {"none": cs.controls, "rich96": cs.rich_controls, **{t: cs.replicates for t in cs.truths}}
+    if a.families == "diagnosis":
+        # the diagnosis does not know the design: "no effect" 1/2 (base and finer structure 1/4 each), the rest
+        # shared equally by its candidates
+        fams = ["none", "none_elements", *_W["oracles"][1].sims, "direction_scatter"]
+        counts = {t: (0.25 if t.startswith("none") else 0.5 / (len(fams) - 2)) for t in fams}
+        no_effect = ("none", "none_elements")
+
+        def target_of(t):
+            return "none" if t in no_effect else t
+    else:
+        counts = {"none": cs.controls, "rich96": cs.rich_controls, **{t: cs.replicates for t in cs.truths}}
+        no_effect = ("none", "rich96")
+
+        def target_of(t):
+            return TARGET[t]
     logprior = {t: np.log(n / sum(counts.values())) for t, n in counts.items()}
-    jobs = [(i, c.strengths, np.log(c.forces), c.noise, sds, a.plug_in) for i, c in enumerate(cases)]
+    jobs = [(i, c.strengths, np.log(c.forces), c.noise if a.noise == "true" else c.noise_sd, sds, a.plug_in)
+            for i, c in enumerate(cases)]
     if a.jobs > 1:
         from multiprocessing import get_context
 
@@ -309,16 +391,16 @@ def main(argv=None) -> dict:
     rows = []
     for i, (c, res) in enumerate(zip(cases, results)):
         for (k, sd), ll in res.items():
-            lp = {t: ll[t] + logprior[t] for t in counts}
+            lp = {t: ll[t] + logprior[t] for t in counts if t in ll}
             z = logsumexp(list(lp.values()))
             post = {t: float(np.exp(v - z)) for t, v in lp.items()}
             best = max(post, key=post.get)
-            effects = {t: v for t, v in post.items() if t not in ("none", "rich96")}
+            effects = {t: v for t, v in post.items() if t not in no_effect}
             beff = max(effects, key=effects.get)
             rows.append({"case": c.name, "truth": c.truth, "target": TARGET[c.truth],
                          "truth_params": describe(c.truth, c.params), "noise_true": c.noise, "strength_sd": sd,
-                         "grid_scale": k, "map_truth": best, "map_target": TARGET[best],
-                         "p_no_effect": post["none"] + post["rich96"], "best_effect_target": TARGET[beff],
+                         "grid_scale": k, "map_truth": best, "map_target": target_of(best),
+                         "p_no_effect": sum(post[t] for t in no_effect), "best_effect_target": target_of(beff),
                          "detectable": det.get(c.name) if det is not None else True,
                          **{f"post_{t}": v for t, v in post.items()}, **{f"ll_{t}": v for t, v in ll.items()}})
         if (i + 1) % 10 == 0 or i + 1 == len(cases):
@@ -331,10 +413,10 @@ def main(argv=None) -> dict:
                     for (k, sd), g in df.groupby(["grid_scale", "strength_sd"])])
     atomic_write_csv(df, out / "oracle_rows.csv")
     atomic_write_csv(sc, out / "oracle_scores.csv")
-    info = {"seed": cfg["seed"], "stream": stream, "oracle_stream": "gap-oracle", "cases": len(cases),
+    info = {"seed": seed, "stream": stream, "oracle_stream": "gap-oracle", "cases": len(cases),
             "detectable_from": a.cases, "wall_s": time.perf_counter() - t0, "strength_sd": sds,
             "directions": a.directions, "element_draws": a.element_draws, "check": a.check, "jobs": a.jobs,
-            "plug_in": a.plug_in}
+            "plug_in": a.plug_in, "families": a.families, "noise": a.noise}
     atomic_write_text(json.dumps(info, indent=2), out / "oracle_summary.json")
     pd.set_option("display.width", 220)
     for (k, sd), g in df.groupby(["grid_scale", "strength_sd"]):

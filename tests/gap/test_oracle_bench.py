@@ -37,7 +37,8 @@ def test_gaussian_and_grid_helpers(oracle_mod):
 def test_oracle_runs_on_the_user_design_and_reports_posteriors(oracle_mod, tmp_path):
     """Three cases of the user benchmark's design (small draw counts): a row per case and strength SD, posteriors
     that sum to one, the cases' truths as the user benchmark names them, and an OUT that is not overwritten."""
-    out = oracle_mod.main(["--config", CONFIG, "--out", str(tmp_path), "--limit", "3", "--directions", "4", "--element-draws", "30",
+    out = oracle_mod.main(["--config", CONFIG, "--out", str(tmp_path), "--limit", "3", "--directions", "4",
+                           "--element-draws", "30",
                            "--strength-sd", "0,0.3"])
     rows = out["rows"]
     assert len(rows) == 6 and set(rows.strength_sd) == {0.0, 0.3}
@@ -73,3 +74,19 @@ def test_plug_in_fit_matches_the_forces_at_least_as_well_as_the_truth(oracle_mod
 
     assert rms(fit) <= rms(case.strengths) + 1e-3
     assert rms(fit) < 2 * case.noise
+
+
+def test_diagnosis_families_name_the_first_cases(oracle_mod, tmp_path):
+    """``--families diagnosis --plug-in --noise measured``: the diagnosis's own candidates, its aiming-scatter model
+    and its element null, fitted strengths and the trials' measured noise. Posteriors sum to one over the
+    diagnosis's families; the first three cases of the design (a base-model control, an aiming error of 8.8 deg,
+    an asymmetry of 0.43) get their targets (each a 1-in-15 guess among the families)."""
+    out = oracle_mod.main(["--config", CONFIG, "--out", str(tmp_path), "--limit", "3", "--element-draws", "40",
+                           "--strength-sd", "0.3", "--families", "diagnosis", "--plug-in", "--noise", "measured"])
+    rows = out["rows"]
+    post = rows[[c for c in rows if c.startswith("post_")]]
+    assert {"post_direction_scatter", "post_none_elements", "post_finer_groups"} <= set(post)
+    assert np.allclose(post.to_numpy().sum(axis=1), 1.0)
+    assert list(rows.truth) == ["none", "direction_error", "asymmetry"]
+    assert list(rows.map_target) == ["none", "direction_scatter", "asymmetry"]
+    assert rows.p_no_effect.iloc[0] > 0.5 and rows.p_no_effect.iloc[1:].max() < 0.01
