@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from scipy.special import logsumexp
+from scipy.stats import chi2 as chi2_dist
 
 
 def _grid(lo: float, hi: float, n: int, signed: bool) -> np.ndarray:
@@ -73,6 +74,7 @@ class Oracle:
         from neckstrength.gap import truths as T
 
         self.T, self.setup, self.cs, self.k = T, setup, cs, scale
+        self.repeats = cs.repeats
         self.fc = T.TruthForces(setup)
         self.directions, self.element_draws = directions * scale, element_draws * scale
         m = setup.model
@@ -81,54 +83,17 @@ class Oracle:
         free = list(dict.fromkeys(base))
         self.pidx = np.array([free.index(b) for b in base])
         self.nfree = len(free)
-        z = np.sort(np.random.default_rng(0).normal(size=(400000, cs.repeats)), axis=1)[:, -1]
-        self.z_mean, self.z_var = float(z.mean()), float(z.var())
 
-    def jacobian(self, f: np.ndarray, eps: float = 0.01) -> np.ndarray:
-        """d log force / d log free strength at ``f`` (forward differences)."""
-        b = np.log(self.fc.base(f))
-        return np.array([(np.log(self.fc.base(f * np.exp(eps * (self.pidx == j)))) - b) / eps
-                         for j in range(self.nfree)]).T
+    def jacobian(self, f: np.ndarray) -> np.ndarray:
+        from neckstrength.gap.evidence import log_jacobian
 
-    def fit_base(self, y: np.ndarray, sigma: float, prior_sd: float = 1.0, iters: int = 200) -> np.ndarray:
-        """Strengths of the base model fitted to the recorded log forces ``y``: the most probable log free strength
-        ratios to the model's under a normal prior of SD ``prior_sd`` (the largest-of-trials bias removed; damped
-        Gauss-Newton from the model's strengths scaled to the forces' mean)."""
-        m = self.setup.model
-        t = y - self.z_mean * sigma
-        w = (sigma / prior_sd) ** 2
+        return log_jacobian(self.fc.base, f, self.pidx)
 
-        def f_of(phi):
-            return m.strengths * np.exp(phi[self.pidx])
+    def fit_base(self, y: np.ndarray, sigma: float) -> np.ndarray:
+        """The base model fitted to the recorded log forces (:func:`neckstrength.gap.evidence.fit_strengths_map`)."""
+        from neckstrength.gap.evidence import fit_strengths_map
 
-        def loss(phi, r):
-            return r @ r + w * phi @ phi
-
-        phi = np.full(self.nfree, float(np.mean(t - np.log(self.fc.base(m.strengths)))))
-        r = t - np.log(self.fc.base(f_of(phi)))
-        mu = 1e-2
-        for _ in range(iters):
-            J = self.jacobian(f_of(phi))
-            H = J.T @ J + w * np.eye(self.nfree)
-            new = phi + np.linalg.solve(H + mu * np.diag(np.diag(H)), J.T @ r - w * phi)
-            r2 = t - np.log(self.fc.base(f_of(new)))
-            if np.all(np.isfinite(r2)) and loss(new, r2) < loss(phi, r):
-                done = loss(phi, r) - loss(new, r2) < 1e-10 * loss(phi, r)
-                phi, r, mu = new, r2, mu / 3
-                if done:
-                    break
-            else:
-                mu *= 10
-                if mu > 1e8:
-                    break
-        return f_of(phi)
-
-    @staticmethod
-    def _gauss(y, means, cov):
-        """log N(y; mean_i, cov) for each row of ``means``."""
-        L = np.linalg.cholesky(cov)
-        r = np.linalg.solve(L, (y[None, :] - np.atleast_2d(means)).T)
-        return -0.5 * (r ** 2).sum(axis=0) - np.log(np.diag(L)).sum() - 0.5 * len(y) * np.log(2 * np.pi)
+        return fit_strengths_map(self.fc.base, self.setup.model.strengths, self.pidx, y, sigma, self.cs.repeats)
 
     def signatures(self, f: np.ndarray, rng: np.random.Generator) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
         """Per truth family, a list of (clean log forces per parameter point [G x K], extra covariance [K x K]):
@@ -174,69 +139,41 @@ class Oracle:
         return out
 
     def loglik(self, sig, J: np.ndarray, y: np.ndarray, sigma: float, strength_sd: float) -> dict[str, float]:
-        """Log marginal likelihood per family of the recorded log forces ``y`` (noise ``sigma``), the strengths
-        known up to a log factor of SD ``strength_sd`` (0: exactly)."""
-        K = len(y)
-        cov0 = strength_sd ** 2 * J @ J.T + self.z_var * sigma ** 2 * np.eye(K)
-        shift = self.z_mean * sigma
-        out = {}
-        for fam, comps in sig.items():
-            lls = [self._gauss(y, mu + shift, cov0 + extra + 1e-12 * np.eye(K)) for mu, extra in comps]
-            lls = [logsumexp(v) - np.log(len(v)) for v in lls]
-            out[fam] = float(logsumexp(lls) - np.log(len(lls)))
-        return out
+        from neckstrength.gap.evidence import log_evidence
+
+        return log_evidence(sig, J, y, sigma, strength_sd, self.cs.repeats)
 
 
-class DiagnosisFamilies(Oracle):
-    """The same Bayes observer with the **diagnosis's own candidates** instead of the truths' families: each effect
-    of ``effects`` (:mod:`neckstrength.gap.effects`, its forward model through :class:`neckstrength.gap.fit.Simulator`)
-    averaged over its screen grid (``Effect.grid(n_grid)`` without the neutral point); ``direction_scatter`` as the
-    diagnosis's aiming-scatter model (:mod:`neckstrength.gap.scatter`: extra variance ``v_k c^2 / (2 a^2)`` per test,
-    ``c`` over ``scatter_cones`` deg); "no effect" as the base model alone and the base model with the element
-    null's finer structure (:class:`neckstrength.gap.calibrate.ElementNull`, its mean and covariance over
-    ``element_draws`` draws at ``element_spread``). Nothing here comes from the truths' code but the fit's noise
-    model (largest of the trials)."""
+class DiagnosisFamilies:
+    """The same observer over **the diagnosis's own explanations** (:class:`neckstrength.gap.evidence.Explanations`:
+    its candidates on their screen grids, its aiming-scatter model, its element null as a second "no effect"), with
+    :class:`Oracle`'s interface."""
 
-    def __init__(self, setup, cs, ctx, effects, n_grid: int = 17, scatter_cones=(4.0, 8.0, 12.0, 16.0, 20.0),
-                 element_spread: float = 0.3, element_draws: int = 200):
-        super().__init__(setup, cs, 1, 1, element_draws)
-        from neckstrength.gap.calibrate import ElementNull
-        from neckstrength.gap.effects import available_effects, base_instance, compose
-        from neckstrength.gap.fit import Simulator
+    def __init__(self, setup, ctx, effects, repeats: int, element_draws: int):
+        from neckstrength.gap.evidence import EvidenceSettings, Explanations
 
-        self.ctx = ctx
-        self.base_sim = Simulator(ctx, base_instance(ctx))
-        self.sims = {e.name: [Simulator(ctx, compose(ctx, [e], [th])) for th in e.grid(n_grid)[1:]]
-                     for e in available_effects(ctx, effects)}
-        self.enull = ElementNull(ctx, element_spread)
-        self.cones = np.radians(np.asarray(scatter_cones, float))
+        self.setup = setup
+        self.e = Explanations(ctx, effects, EvidenceSettings(repeats=repeats, element_draws=element_draws))
+        self.repeats = repeats
 
-    def signatures(self, f: np.ndarray, rng: np.random.Generator):
-        from neckstrength.gap.scatter import ScatterSettings, direction_sensitivity
+    def fit_base(self, y, sigma):
+        return self.e.fit(y, sigma)
 
-        K = len(self.fc.N)
-        zero = np.zeros((K, K))
-        F = np.asarray(f, float)[None, :]
-        lb = np.log(self.base_sim.forces(F)[0])
-        out = {"none": [(lb[None, :], zero)]}
-        for name, sims in self.sims.items():
-            with np.errstate(divide="ignore"):
-                rows = np.log(np.array([sim.forces(F)[0] for sim in sims]))
-            rows = rows[np.all(np.isfinite(rows), axis=1)]
-            if len(rows):
-                out[name] = [(rows, zero)]
-        ss = ScatterSettings()
-        v = direction_sensitivity(self.ctx.model, f, self.fc.P, self.fc.N, ss)
-        a = np.radians(ss.ring_deg)
-        out["direction_scatter"] = [(lb[None, :], np.diag(v * c ** 2 / (2 * a ** 2))) for c in self.cones]
-        d = np.log(np.maximum(self.enull.forces(np.repeat(F, self.element_draws, axis=0),
-                                                self.enull.factors(self.element_draws, rng)), 1e-300)) - lb
-        d = d[np.all(np.isfinite(d) & (d > -20), axis=1)]
-        out["none_elements"] = [((lb + d.mean(axis=0))[None, :], np.cov(d.T))]
-        return out
+    def jacobian(self, f):
+        from neckstrength.gap.evidence import log_jacobian
+
+        return log_jacobian(self.e.base, f, self.e.pidx)
+
+    def signatures(self, f, rng):
+        return self.e.signatures(f, rng)
+
+    def loglik(self, sig, J, y, sigma, strength_sd):
+        from neckstrength.gap.evidence import log_evidence
+
+        return log_evidence(sig, J, y, sigma, strength_sd, self.e.s.repeats)
 
 
-def score(rows: pd.DataFrame, thresholds) -> pd.DataFrame:
+def score(rows: pd.DataFrame, thresholds, fit_alpha: float | None = None) -> pd.DataFrame:
     """Named correctly (detectable effect cases) and false alarms (controls) per decision rule, Wilson 95%."""
     from neckstrength.gap.scoring import wilson_interval
 
@@ -248,6 +185,11 @@ def score(rows: pd.DataFrame, thresholds) -> pd.DataFrame:
     for t in thresholds:
         rules.append((f"effect named only if P(no effect) < {t:g}",
                       np.where(rows["p_no_effect"] < t, rows["best_effect_target"], "none")))
+    if fit_alpha is not None and "fit_p_best_effect" in rows:
+        for t in thresholds:
+            rules.append((f"P(no effect) < {t:g} and the effect fits (chi-square p >= {fit_alpha:g})",
+                          np.where((rows["p_no_effect"] < t) & (rows["fit_p_best_effect"] >= fit_alpha),
+                                   rows["best_effect_target"], "none")))
     for rule, named in rules:
         named = pd.Series(np.asarray(named), index=rows.index)
         for group, sel, hit in [("detectable effect cases: named correctly", det, named == rows["target"]),
@@ -277,14 +219,16 @@ def _init(cfg_path, model, cs, scales, directions, element_draws, families: str 
     ctx, _, effects = settings_for(cfg, model, 1, ())
     setup = TruthSetup.of(ctx)
     if families == "diagnosis":
-        oracles = {1: DiagnosisFamilies(setup, cs, ctx, effects)}
+        oracles = {1: DiagnosisFamilies(setup, ctx, effects, cs.repeats, element_draws)}
     else:
         oracles = {k: Oracle(setup, cs, k, directions, element_draws) for k in scales}
     _W.update(seed=cfg["seed"], oracles=oracles, setup=setup)
 
 
 def _one(job):
-    """Log likelihoods of one case: {(grid scale, strength SD): {family: ll}}."""
+    """Log likelihoods and best-fit chi-squares of one case: {(grid scale, strength SD): ({family: ll},
+    {family: chi2})}."""
+    from neckstrength.gap.evidence import best_fit_chi2
     from neckstrength.seeds import derive_rng
 
     i, f, y, sigma, sds, plug_in = job
@@ -295,7 +239,8 @@ def _one(job):
         sig = orc.signatures(f, derive_rng(_W["seed"], "gap-oracle", i, k))
         J = orc.jacobian(f)
         for sd in sds:
-            out[(k, sd)] = orc.loglik(sig, J, y, sigma, sd)
+            out[(k, sd)] = (orc.loglik(sig, J, y, sigma, sd),
+                            {t: best_fit_chi2(c, J, y, sigma, sd, orc.repeats) for t, c in sig.items()})
     return out
 
 
@@ -325,6 +270,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--families", choices=("truths", "diagnosis"), default="truths",
                     help="the truths' own families (default) or the diagnosis's candidates, aiming-scatter model and "
                     "element null")
+    ap.add_argument("--fit-alpha", type=float, default=0.001, help="rules that also need the named effect to fit: "
+                    "its best chi-square p-value (K degrees of freedom) at least this")
     ap.add_argument("--check", action="store_true", help="also with every grid and draw count doubled")
     ap.add_argument("--jobs", type=int, default=1, help="processes")
     ap.add_argument("--force", action="store_true", help="replace the files of an OUT this script wrote before")
@@ -366,9 +313,10 @@ def main(argv=None) -> dict:
     if a.families == "diagnosis":
         # the diagnosis does not know the design: "no effect" 1/2 (base and finer structure 1/4 each), the rest
         # shared equally by its candidates
-        fams = ["none", "none_elements", *_W["oracles"][1].sims, "direction_scatter"]
-        counts = {t: (0.25 if t.startswith("none") else 0.5 / (len(fams) - 2)) for t in fams}
-        no_effect = ("none", "none_elements")
+        from neckstrength.gap.evidence import NO_EFFECT
+
+        counts = {t: float(np.exp(v)) for t, v in _W["oracles"][1].e.logprior().items()}
+        no_effect = NO_EFFECT
 
         def target_of(t):
             return "none" if t in no_effect else t
@@ -390,7 +338,7 @@ def main(argv=None) -> dict:
         results = map(_one, jobs)
     rows = []
     for i, (c, res) in enumerate(zip(cases, results)):
-        for (k, sd), ll in res.items():
+        for (k, sd), (ll, chi2) in res.items():
             lp = {t: ll[t] + logprior[t] for t in counts if t in ll}
             z = logsumexp(list(lp.values()))
             post = {t: float(np.exp(v - z)) for t, v in lp.items()}
@@ -402,6 +350,8 @@ def main(argv=None) -> dict:
                          "grid_scale": k, "map_truth": best, "map_target": target_of(best),
                          "p_no_effect": sum(post[t] for t in no_effect), "best_effect_target": target_of(beff),
                          "detectable": det.get(c.name) if det is not None else True,
+                         "fit_p_map": float(chi2_dist.sf(chi2[best], len(c.forces))),
+                         "fit_p_best_effect": float(chi2_dist.sf(chi2[beff], len(c.forces))),
                          **{f"post_{t}": v for t, v in post.items()}, **{f"ll_{t}": v for t, v in ll.items()}})
         if (i + 1) % 10 == 0 or i + 1 == len(cases):
             print(f"[{time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU here, load "
@@ -409,7 +359,7 @@ def main(argv=None) -> dict:
     df = pd.DataFrame(rows)
     out.mkdir(parents=True, exist_ok=True)
     thresholds = [float(x) for x in a.thresholds.split(",") if x]
-    sc = pd.concat([score(g, thresholds).assign(grid_scale=k, strength_sd=sd)
+    sc = pd.concat([score(g, thresholds, a.fit_alpha).assign(grid_scale=k, strength_sd=sd)
                     for (k, sd), g in df.groupby(["grid_scale", "strength_sd"])])
     atomic_write_csv(df, out / "oracle_rows.csv")
     atomic_write_csv(sc, out / "oracle_scores.csv")

@@ -1,0 +1,262 @@
+"""Bayes evidence of the diagnosis's explanations of a data set (issue 32; not yet the diagnosis's decision).
+
+The calibrated decision (:mod:`neckstrength.gap.calibrate`) asks, per candidate, whether its held-out improvement
+exceeds what noise on the model's own structure gives. This module asks instead which explanation makes the
+recorded forces most probable, all explanations competing at once:
+
+- "no effect": the base model, and the base model with the element null's finer structure
+  (:class:`neckstrength.gap.calibrate.ElementNull`: its mean and covariance of the log forces over draws);
+- each candidate effect (:mod:`neckstrength.gap.effects`) averaged over its screen grid without the neutral point
+  (a uniform prior over each parameter's range);
+- ``direction_scatter``, the aiming-scatter model of :mod:`neckstrength.gap.scatter`: per test an extra log
+  variance ``v_k c^2 / (2 a^2)``, ``c`` over ``scatter_cones_deg``.
+
+Each explanation is a Gaussian in the K log forces: its clean log forces at the fitted base-model strengths, plus
+the recording noise (the largest of ``repeats`` log-normal trials of log SD ``sigma``: the mean and variance of the
+largest of ``repeats`` standard normals, times ``sigma``), plus strengths known only up to a log-normal factor of SD
+``strength_sd``, linearised (``strength_sd^2 J J'``, J the derivative of the log forces in the log free strengths).
+The prior gives "no effect" ``prior_no_effect`` (half each to its two forms) and shares the rest equally among the
+effects. An effect is named when the posterior probability of "no effect" is below ``threshold``.
+
+Measured in ``benchmarks/bench_gap_oracle.py --families diagnosis`` (docs/benchmarks.md#gap-oracle-diagnosis).
+The probabilities are heuristic: checked against the share of controls on the user benchmark's mix of truths only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy import integrate, stats
+from scipy.special import logsumexp
+
+NO_EFFECT = ("none", "none_elements")
+
+#: explanation -> list of (clean log forces per parameter point [G x K], extra covariance [K x K]); its likelihood is
+#: the average over the list's components and their rows
+Signatures = dict[str, list[tuple[np.ndarray, np.ndarray]]]
+
+
+@dataclass(frozen=True)
+class EvidenceSettings:
+    """The choices the answer depends on (each stated where it is printed)."""
+
+    strength_sd: float = 0.3
+    prior_no_effect: float = 0.5
+    threshold: float = 0.05
+    n_grid: int = 17
+    scatter_cones_deg: tuple[float, ...] = (4.0, 8.0, 12.0, 16.0, 20.0)
+    element_spread: float = 0.3
+    element_draws: int = 200
+    repeats: int = 3
+    fit_prior_sd: float = 1.0
+
+
+def largest_of_normals(repeats: int) -> tuple[float, float]:
+    """Mean and variance of the largest of ``repeats`` independent standard normals (numerical integration)."""
+    if repeats < 1:
+        raise ValueError(f"repeats must be >= 1, not {repeats}")
+
+    def dens(z):
+        return repeats * stats.norm.pdf(z) * stats.norm.cdf(z) ** (repeats - 1)
+
+    m1 = integrate.quad(lambda z: z * dens(z), -np.inf, np.inf)[0]
+    m2 = integrate.quad(lambda z: z * z * dens(z), -np.inf, np.inf)[0]
+    return float(m1), float(m2 - m1 ** 2)
+
+
+def gaussian_logpdf(y: np.ndarray, means: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``log N(y; mean_i, cov)`` for each row of ``means``."""
+    L = np.linalg.cholesky(cov)
+    r = np.linalg.solve(L, (np.asarray(y, float)[None, :] - np.atleast_2d(means)).T)
+    return -0.5 * (r ** 2).sum(axis=0) - np.log(np.diag(L)).sum() - 0.5 * len(y) * np.log(2 * np.pi)
+
+
+def log_evidence(sig: Signatures, J: np.ndarray, y: np.ndarray, sigma: float, strength_sd: float,
+                 repeats: int) -> dict[str, float]:
+    """Log marginal likelihood of the recorded log forces ``y`` under each explanation of ``sig`` (noise ``sigma``
+    per trial, the largest of ``repeats`` kept; strengths known up to a log SD ``strength_sd`` around those the
+    signatures were made at, linearised with ``J``)."""
+    K = len(y)
+    z_mean, z_var = largest_of_normals(repeats)
+    cov0 = strength_sd ** 2 * J @ J.T + z_var * sigma ** 2 * np.eye(K)
+    shift = z_mean * sigma
+    out = {}
+    for name, comps in sig.items():
+        lls = [gaussian_logpdf(y, mu + shift, cov0 + extra + 1e-12 * np.eye(K)) for mu, extra in comps]
+        lls = [logsumexp(v) - np.log(len(v)) for v in lls]
+        out[name] = float(logsumexp(lls) - np.log(len(lls)))
+    return out
+
+
+def best_fit_chi2(comps: list[tuple[np.ndarray, np.ndarray]], J: np.ndarray, y: np.ndarray, sigma: float,
+                  strength_sd: float, repeats: int) -> float:
+    """Smallest Mahalanobis distance^2 of ``y`` from one explanation's components and parameter points (under the
+    same Gaussian as :func:`log_evidence`): about chi-square with K degrees of freedom where the explanation holds,
+    fewer for the best of many points. A posterior says which explanation is least bad; this says whether it fits."""
+    K = len(y)
+    z_mean, z_var = largest_of_normals(repeats)
+    cov0 = strength_sd ** 2 * J @ J.T + z_var * sigma ** 2 * np.eye(K)
+    best = np.inf
+    for mu, extra in comps:
+        L = np.linalg.cholesky(cov0 + extra + 1e-12 * np.eye(K))
+        r = np.linalg.solve(L, (np.asarray(y, float)[None, :] - np.atleast_2d(mu) - z_mean * sigma).T)
+        best = min(best, float((r ** 2).sum(axis=0).min()))
+    return best
+
+
+def posterior(loglik: dict[str, float], logprior: dict[str, float]) -> dict[str, float]:
+    """Posterior probability of each explanation (those in both dicts)."""
+    lp = {t: loglik[t] + logprior[t] for t in loglik if t in logprior}
+    z = logsumexp(list(lp.values()))
+    return {t: float(np.exp(v - z)) for t, v in lp.items()}
+
+
+def log_jacobian(base: Callable[[np.ndarray], np.ndarray], f: np.ndarray, pidx: np.ndarray,
+                 eps: float = 0.01) -> np.ndarray:
+    """``d log force / d log free strength`` (K x p) of ``base`` at strengths ``f`` (forward differences; ``pidx``
+    maps each muscle to its free strength)."""
+    b = np.log(base(f))
+    return np.array([(np.log(base(f * np.exp(eps * (pidx == j)))) - b) / eps
+                     for j in range(int(pidx.max()) + 1)]).T
+
+
+def fit_strengths_map(base: Callable[[np.ndarray], np.ndarray], strengths0: np.ndarray, pidx: np.ndarray,
+                      y: np.ndarray, sigma: float, repeats: int, prior_sd: float = 1.0,
+                      iters: int = 200) -> np.ndarray:
+    """Strengths of the base model fitted to the recorded log forces ``y``: the most probable log free strength ratios
+    to ``strengths0`` under a normal prior of SD ``prior_sd``, the largest-of-trials bias removed (damped
+    Gauss-Newton from ``strengths0`` scaled to the forces' mean)."""
+    z_mean, _ = largest_of_normals(repeats)
+    t = np.asarray(y, float) - z_mean * sigma
+    w = (sigma / prior_sd) ** 2
+    p = int(pidx.max()) + 1
+
+    def f_of(phi):
+        return strengths0 * np.exp(phi[pidx])
+
+    def loss(phi, r):
+        return r @ r + w * phi @ phi
+
+    phi = np.full(p, float(np.mean(t - np.log(base(strengths0)))))
+    r = t - np.log(base(f_of(phi)))
+    mu = 1e-2
+    for _ in range(iters):
+        J = log_jacobian(base, f_of(phi), pidx)
+        H = J.T @ J + w * np.eye(p)
+        new = phi + np.linalg.solve(H + mu * np.diag(np.diag(H)), J.T @ r - w * phi)
+        with np.errstate(divide="ignore"):
+            r2 = t - np.log(base(f_of(new)))
+        if np.all(np.isfinite(r2)) and loss(new, r2) < loss(phi, r):
+            done = loss(phi, r) - loss(new, r2) < 1e-10 * loss(phi, r)
+            phi, r, mu = new, r2, mu / 3
+            if done:
+                break
+        else:
+            mu *= 10
+            if mu > 1e8:
+                break
+    return f_of(phi)
+
+
+@dataclass
+class EvidenceResult:
+    """One data set's evidence: log likelihood and posterior per explanation, the probability of "no effect", the
+    most probable effect, the effect named (``none`` unless P(no effect) < threshold), the strengths used, and
+    whether the most probable explanation (``best``, "no effect" included) fits at all: its smallest Mahalanobis
+    distance^2 ``fit_chi2`` and the chi-square upper tail ``fit_p`` with K degrees of freedom (approximate)."""
+
+    loglik: dict[str, float]
+    posterior: dict[str, float]
+    p_no_effect: float
+    best_effect: str
+    named: str
+    strengths: np.ndarray
+    settings: EvidenceSettings
+    best: str = ""
+    fit_chi2: float = np.nan
+    fit_p: float = np.nan
+
+
+class Explanations:
+    """The diagnosis's explanations of one context (``ctx``: :class:`neckstrength.gap.effects.GapContext`) and
+    candidate ``effects``; made once, used for many data sets of that context."""
+
+    def __init__(self, ctx, effects: Sequence[str], settings: EvidenceSettings = EvidenceSettings()):
+        from neckstrength.estimation.parameters import free_parameters
+        from neckstrength.gap.calibrate import ElementNull
+        from neckstrength.gap.effects import available_effects, base_instance, compose
+        from neckstrength.gap.fit import Simulator
+
+        self.ctx, self.s = ctx, settings
+        self.base_sim = Simulator(ctx, base_instance(ctx))
+        self.sims = {e.name: [Simulator(ctx, compose(ctx, [e], [th])) for th in e.grid(settings.n_grid)[1:]]
+                     for e in available_effects(ctx, effects)}
+        self.enull = ElementNull(ctx, settings.element_spread)
+        self.pidx = np.asarray(free_parameters(ctx.model, ctx.tie_sides)[0])
+        d = ctx.directions
+        self.P = d[["px", "py", "pz"]].to_numpy(float)
+        N = d[["nx", "ny", "nz"]].to_numpy(float)
+        self.N = N / np.linalg.norm(N, axis=1, keepdims=True)
+
+    @property
+    def names(self) -> list[str]:
+        return [*NO_EFFECT, *self.sims, "direction_scatter"]
+
+    def logprior(self) -> dict[str, float]:
+        n_eff = len(self.names) - len(NO_EFFECT)
+        p0 = self.s.prior_no_effect
+        return {t: float(np.log(p0 / len(NO_EFFECT) if t in NO_EFFECT else (1 - p0) / n_eff)) for t in self.names}
+
+    def base(self, f: np.ndarray) -> np.ndarray:
+        return self.base_sim.forces(np.asarray(f, float)[None, :])[0]
+
+    def fit(self, y: np.ndarray, sigma: float) -> np.ndarray:
+        return fit_strengths_map(self.base, self.ctx.model.strengths, self.pidx, y, sigma, self.s.repeats,
+                                 self.s.fit_prior_sd)
+
+    def signatures(self, f: np.ndarray, rng: np.random.Generator) -> Signatures:
+        from neckstrength.gap.scatter import ScatterSettings, direction_sensitivity
+
+        K = len(self.N)
+        zero = np.zeros((K, K))
+        F = np.asarray(f, float)[None, :]
+        lb = np.log(self.base(f))
+        out: Signatures = {"none": [(lb[None, :], zero)]}
+        for name, sims in self.sims.items():
+            with np.errstate(divide="ignore"):
+                rows = np.log(np.array([sim.forces(F)[0] for sim in sims]))
+            rows = rows[np.all(np.isfinite(rows), axis=1)]
+            if len(rows):
+                out[name] = [(rows, zero)]
+        ss = ScatterSettings()
+        v = direction_sensitivity(self.ctx.model, f, self.P, self.N, ss)
+        a = np.radians(ss.ring_deg)
+        out["direction_scatter"] = [(lb[None, :], np.diag(v * c ** 2 / (2 * a ** 2)))
+                                    for c in np.radians(np.asarray(self.s.scatter_cones_deg, float))]
+        n = self.s.element_draws
+        with np.errstate(divide="ignore"):
+            d = np.log(np.maximum(self.enull.forces(np.repeat(F, n, axis=0), self.enull.factors(n, rng)),
+                                  1e-300)) - lb
+        d = d[np.all(np.isfinite(d) & (d > -20), axis=1)]
+        out["none_elements"] = [((lb + d.mean(axis=0))[None, :], np.cov(d.T))]
+        return out
+
+    def evidence(self, forces: np.ndarray, sigma: float, rng: np.random.Generator,
+                 strengths: np.ndarray | None = None, strength_sd: float | None = None) -> EvidenceResult:
+        """The evidence of one data set's recorded forces (N, the largest of ``repeats`` trials per test) with noise
+        ``sigma`` (log SD of one trial); ``strengths``: the base model's (fitted here when None)."""
+        y = np.log(np.asarray(forces, float))
+        f = self.fit(y, sigma) if strengths is None else np.asarray(strengths, float)
+        sd = self.s.strength_sd if strength_sd is None else float(strength_sd)
+        sig, J = self.signatures(f, rng), log_jacobian(self.base, f, self.pidx)
+        ll = log_evidence(sig, J, y, sigma, sd, self.s.repeats)
+        post = posterior(ll, self.logprior())
+        p0 = sum(post.get(t, 0.0) for t in NO_EFFECT)
+        effects = {t: v for t, v in post.items() if t not in NO_EFFECT}
+        beff = max(effects, key=effects.get)
+        best = max(post, key=post.get)
+        chi2 = best_fit_chi2(sig[best], J, y, sigma, sd, self.s.repeats)
+        return EvidenceResult(ll, post, p0, beff, beff if p0 < self.s.threshold else "none", f, self.s, best, chi2,
+                              float(stats.chi2.sf(chi2, len(y))))

@@ -1,0 +1,93 @@
+"""neckstrength.gap.evidence: the Bayes evidence of the diagnosis's explanations."""
+
+import numpy as np
+import pytest
+
+from neckstrength.gap.evidence import (NO_EFFECT, fit_strengths_map, largest_of_normals, log_evidence,
+                                       log_jacobian, posterior)
+
+
+def test_largest_of_normals_matches_simulation():
+    rng = np.random.default_rng(1)
+    z = rng.normal(size=(400_000, 3)).max(axis=1)
+    m, v = largest_of_normals(3)
+    assert m == pytest.approx(z.mean(), abs=0.005) and v == pytest.approx(z.var(), abs=0.005)
+    assert largest_of_normals(1) == pytest.approx((0.0, 1.0), abs=1e-8)
+    with pytest.raises(ValueError):
+        largest_of_normals(0)
+
+
+def _linear_world(K=25, p=4, seed=0):
+    """A toy base model whose log forces are linear in the log strengths: log F = A log f."""
+    rng = np.random.default_rng(seed)
+    A = np.abs(rng.normal(size=(K, p)))
+    A /= A.sum(axis=1, keepdims=True)          # homogeneous of degree 1, like the max-wrench LP
+    pidx = np.arange(p)
+
+    def base(f):
+        return np.exp(A @ np.log(f))
+
+    return A, pidx, base
+
+
+def test_evidence_names_the_explanation_that_made_the_data_and_not_noise():
+    """Two toy explanations with distinct signatures beside "no effect": data made by one of them are given to it,
+    data of noise alone to "no effect" (each a 1-in-3 guess by chance), and the posteriors sum to one."""
+    K, sigma, R = 25, 0.04, 3
+    A, pidx, base = _linear_world(K)
+    rng = np.random.default_rng(2)
+    f = np.exp(rng.normal(0, 0.3, 4))
+    lb = np.log(base(f))
+    sig_a = np.sin(np.arange(K)) * 0.15
+    sig_b = np.where(np.arange(K) % 2 == 0, 0.12, -0.12)
+    zero = np.zeros((K, K))
+    sig = {"none": [(lb[None, :], zero)], "a": [((lb + s * sig_a)[None, :], zero) for s in (0.5, 1.0)],
+           "b": [((lb + s * sig_b)[None, :], zero) for s in (0.5, 1.0)]}
+    J = log_jacobian(base, f, pidx)
+    assert np.allclose(J, A, atol=1e-6)
+    prior = {t: np.log(1 / 3) for t in sig}
+    hits = 0
+    for truth, shift in (("none", 0 * sig_a), ("a", sig_a), ("b", sig_b)):
+        for _ in range(10):
+            trials = lb + shift + rng.normal(0, sigma, (R, K))
+            y = trials.max(axis=0)
+            post = posterior(log_evidence(sig, J, y, sigma, 0.3, R), prior)
+            assert sum(post.values()) == pytest.approx(1.0)
+            hits += max(post, key=post.get) == truth
+    assert hits >= 28
+
+
+def test_fit_recovers_strengths_where_the_tests_determine_them():
+    A, pidx, base = _linear_world()
+    rng = np.random.default_rng(3)
+    f = np.exp(rng.normal(0, 0.3, 4))
+    sigma, R = 0.01, 3
+    y = (np.log(base(f)) + rng.normal(0, sigma, (R, len(A)))).max(axis=0)
+    fit = fit_strengths_map(base, np.ones(4), pidx, y, sigma, R, prior_sd=3.0)
+    assert np.allclose(np.log(fit), np.log(f), atol=0.05)
+
+
+def test_explanations_of_a_context_prior_and_a_noise_only_data_set(ctx_s3):
+    """The diagnosis's explanations on s3m24 (three candidates, small draws): the prior gives "no effect" its stated
+    share, and a data set of the base model plus 4 % noise at strengths the fit must find (tied sides, as the model's) is most probably "no
+    effect" (P 0.6-0.7 on the user benchmark's base-model controls; an effect is named there in 0 of 30)."""
+    from neckstrength.gap.evidence import EvidenceSettings, Explanations
+
+    ex = Explanations(ctx_s3, ["asymmetry", "origin_offset", "submaximal_effort"],
+                      EvidenceSettings(element_draws=40, n_grid=9))
+    lp = ex.logprior()
+    assert set(lp) == {*NO_EFFECT, "asymmetry", "origin_offset", "submaximal_effort", "direction_scatter"}
+    assert sum(np.exp(lp[t]) for t in NO_EFFECT) == pytest.approx(0.5)
+    assert sum(np.exp(v) for v in lp.values()) == pytest.approx(1.0)
+    rng = np.random.default_rng(4)
+    f = ctx_s3.model.strengths * np.exp(rng.normal(0, 0.3, ex.pidx.max() + 1))[ex.pidx]   # sides tied, as fitted
+    forces = (ex.base(f)[None, :] * np.exp(rng.normal(0, 0.04, (3, len(ex.N))))).max(axis=0)
+    res = ex.evidence(forces, 0.04, rng)
+    assert sum(res.posterior.values()) == pytest.approx(1.0)
+    assert res.named == "none" and res.p_no_effect > 0.3
+    assert res.best in NO_EFFECT and res.fit_p > 0.01           # noise only: the best explanation fits
+    # forces the model cannot produce (every other test twice as strong): something is most probable, but nothing
+    # fits (at 30 % the aiming scatter's widest cone, 20 deg, still absorbs it: fit_p 0.46)
+    bad = ex.evidence(forces * np.where(np.arange(len(forces)) % 2 == 0, 2.0, 1.0), 0.04, rng)
+    assert bad.fit_p < 1e-6
+    assert np.all(np.isfinite(res.strengths)) and res.settings.strength_sd == 0.3
