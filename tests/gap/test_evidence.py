@@ -69,8 +69,9 @@ def test_fit_recovers_strengths_where_the_tests_determine_them():
 
 def test_explanations_of_a_context_prior_and_a_noise_only_data_set(ctx_s3):
     """The diagnosis's explanations on s3m24 (three candidates, small draws): the prior gives "no effect" its stated
-    share, and a data set of the base model plus 4 % noise at strengths the fit must find (tied sides, as the model's) is most probably "no
-    effect" (P 0.6-0.7 on the user benchmark's base-model controls; an effect is named there in 0 of 30)."""
+    share, and a data set of the base model plus 4 % noise at strengths the fit must find (tied sides, as the
+    model's) is most probably "no effect" (P 0.6-0.7 on the user benchmark's base-model controls; an effect is named
+    there in 0 of 30), and the fit check tells forces that nothing fits."""
     from neckstrength.gap.evidence import EvidenceSettings, Explanations
 
     ex = Explanations(ctx_s3, ["asymmetry", "origin_offset", "submaximal_effort"],
@@ -80,7 +81,7 @@ def test_explanations_of_a_context_prior_and_a_noise_only_data_set(ctx_s3):
     assert sum(np.exp(lp[t]) for t in NO_EFFECT) == pytest.approx(0.5)
     assert sum(np.exp(v) for v in lp.values()) == pytest.approx(1.0)
     rng = np.random.default_rng(4)
-    f = ctx_s3.model.strengths * np.exp(rng.normal(0, 0.3, ex.pidx.max() + 1))[ex.pidx]   # sides tied, as fitted
+    f = ctx_s3.model.strengths * np.exp(rng.normal(0, 0.3, ex.pidx.max() + 1))[ex.pidx]   # sides tied
     forces = (ex.base(f)[None, :] * np.exp(rng.normal(0, 0.04, (3, len(ex.N))))).max(axis=0)
     res = ex.evidence(forces, 0.04, rng)
     assert sum(res.posterior.values()) == pytest.approx(1.0)
@@ -91,3 +92,26 @@ def test_explanations_of_a_context_prior_and_a_noise_only_data_set(ctx_s3):
     bad = ex.evidence(forces * np.where(np.arange(len(forces)) % 2 == 0, 2.0, 1.0), 0.04, rng)
     assert bad.fit_p < 1e-6
     assert np.all(np.isfinite(res.strengths)) and res.settings.strength_sd == 0.3
+
+
+def test_participants_script_reports_that_no_explanation_fits_s003(tmp_path):
+    """benchmarks/bench_gap_evidence_participants.py on S003 at the prior's noise 0.08: a most probable explanation
+    with its posterior, and the fit check saying that it does not fit (the calibrated decision's remainder is
+    likewise not explained); the table is written once and not overwritten."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    path = root / "benchmarks" / "bench_gap_evidence_participants.py"
+    spec = importlib.util.spec_from_file_location("bench_ev_p", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "ev.csv"
+    df = mod.main(["--config", str(root / "config" / "config.yaml"), "--datasets", "S003", "--noise", "0.08",
+                   "--out", str(out)])
+    assert len(df) == 1 and out.exists()
+    row = df.iloc[0]
+    assert row.most_probable in row.top3 and 0 <= row.p_no_effect <= 1
+    assert row.fit_p_best < 1e-3
+    with pytest.raises(SystemExit, match="--force"):
+        mod.main(["--config", str(root / "config" / "config.yaml"), "--datasets", "S003", "--out", str(out)])
