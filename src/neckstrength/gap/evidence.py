@@ -40,7 +40,12 @@ Signatures = dict[str, list[tuple[np.ndarray, np.ndarray]]]
 
 @dataclass(frozen=True)
 class EvidenceSettings:
-    """The choices the answer depends on (each stated where it is printed)."""
+    """The choices the answer depends on (each stated where it is printed): ``strength_sd`` the log SD of the
+    strengths' uncertainty around the fit (linearised); ``prior_no_effect`` the prior probability of "no effect";
+    ``threshold`` an effect is named below this P(no effect); ``n_grid`` points of each candidate's screen grid;
+    ``scatter_cones_deg`` the aiming cones of ``direction_scatter``; ``element_spread`` / ``element_draws`` the
+    element null's log SD and draws; ``repeats`` trials per recorded force (the largest kept); ``fit_prior_sd``
+    the base fit's prior SD of the log strength ratios."""
 
     strength_sd: float = 0.3
     prior_no_effect: float = 0.5
