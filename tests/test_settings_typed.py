@@ -114,6 +114,7 @@ def _rows():
     from neckstrength.gap.discriminate import DiscriminateSettings
     from neckstrength.gap.engine import CalibrationSettings, DiagnosisSettings
     from neckstrength.gap.fit import FitSettings
+    from neckstrength.gap.evidence import EvidenceSettings
     from neckstrength.gap.protocols import ProtocolSettings
     from neckstrength.identifiability.profile import ProfileSettings
     from neckstrength.identifiability.study import StudySettings
@@ -141,12 +142,13 @@ def _rows():
         ("chapter6.joint", JointSettings, {}, {}),
         ("chapter6", JointSettings, {}, {"n_candidates": "chapter6.joint's", "n_sim": "chapter6.joint's"}),
         ("", EstimateSettings, {"criteria": "chapter6.joint.criteria", "use_emg": "chapter6.joint.use_emg"}, {}),
-        ("gap", DiagnosisSettings, {}, {"fit": sub, "calibration": sub, "protocols": sub}),
+        ("gap", DiagnosisSettings, {}, {"fit": sub, "calibration": sub, "protocols": sub, "evidence": sub}),
         ("gap.fit", FitSettings, {}, {}),
         ("gap.calibration", CalibrationSettings, {"noise_prior": ("noise_prior", _noise_prior)}, {}),
         ("gap.discriminate", DiscriminateSettings, {}, {}),
         ("gap.discriminate.pool", DiscriminateSettings, {}, {}),
         ("gap.protocols", ProtocolSettings, {}, {}),
+        ("gap.evidence", EvidenceSettings, {"n_grid": "grid_points"}, {}),
         ("gap.benchmark", BenchmarkSettings, {}, {}),
         ("clinician.decision", DecisionSettings, {}, {}),
         ("clinician.deficit", DeficitDefinition, {}, {}),
@@ -212,9 +214,9 @@ def compared_defaults(schema: dict, section: str, cls, mapping: dict, excluded: 
 
 ROW_IDS = ["chapter5:ABC", "chapter5.smc:SMC", "chapter5:Dataset", "chapter6:Dataset", "chapter6:Sequential",
            "chapter6.joint:Joint", "chapter6:Joint", "estimate", "gap:Diagnosis", "gap.fit", "gap.calibration",
-           "gap.discriminate", "gap.discriminate.pool", "gap.protocols", "gap.benchmark", "clinician.decision",
-           "clinician.deficit", "decision_study:Cohort", "decision_study:Study", "session", "identifiability:Profile",
-           "identifiability:Study", "reruns", "reruns.chapter5", "chapter3.synthetic", "chapter3", "trials.settings",
+           "gap.discriminate", "gap.discriminate.pool", "gap.protocols", "gap.evidence", "gap.benchmark",
+           "clinician.decision", "clinician.deficit", "decision_study:Cohort", "decision_study:Study", "session",
+           "identifiability:Profile", "identifiability:Study", "reruns", "reruns.chapter5", "chapter3.synthetic", "chapter3", "trials.settings",
            "scorecard"]
 
 

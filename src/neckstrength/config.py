@@ -390,9 +390,10 @@ def estimate_settings(config: Mapping, model_name: str):
 
 
 def diagnosis_settings(config: Mapping, effects: Sequence[str] | None = None,
-                       protocols: bool = True) -> DiagnosisSettings:
-    """``gap`` as :class:`DiagnosisSettings`; ``protocols`` False: without the power per protocol (``gap.protocols``
-    not read; the withheld-effect benchmark scores the decision only)."""
+                       protocols: bool = True, evidence: bool = True) -> DiagnosisSettings:
+    """``gap`` as :class:`DiagnosisSettings`; ``protocols`` / ``evidence`` False: without the power per protocol /
+    the Bayes evidence's second reading (``gap.protocols`` / ``gap.evidence`` not read; the withheld-effect benchmark
+    scores the decision only)."""
     g = config["gap"]
     f = g["fit"]
     fit = FitSettings(max_iter=f["max_iter"], ridge=f["ridge"], bounds_rel=tuple(f["bounds_rel"]),
@@ -404,7 +405,28 @@ def diagnosis_settings(config: Mapping, effects: Sequence[str] | None = None,
                              refine_starts=g.get("refine_starts", 1),
                              reach_samples=g["reach_samples"], reach_iter=g["reach_iter"], seed=config["seed"], fit=fit,
                              calibration=calibration_settings(config),
-                             protocols=protocol_settings(config) if protocols else None)
+                             protocols=protocol_settings(config) if protocols else None,
+                             evidence=evidence_settings(config) if evidence else None)
+
+
+def evidence_settings(config: Mapping):
+    """``gap.evidence`` as :class:`neckstrength.gap.evidence.EvidenceSettings` (absent or ``enabled: false``: no
+    second reading)."""
+    from neckstrength.gap.evidence import EvidenceSettings
+
+    e = dict(config["gap"].get("evidence") or {})
+    if not e or not e.get("enabled", True):
+        return None
+    d = EvidenceSettings()
+    return EvidenceSettings(strength_sd=float(e.get("strength_sd", d.strength_sd)),
+                            prior_no_effect=float(e.get("prior_no_effect", d.prior_no_effect)),
+                            threshold=float(e.get("threshold", d.threshold)),
+                            fit_alpha=float(e.get("fit_alpha", d.fit_alpha)),
+                            n_grid=int(e.get("grid_points", d.n_grid)),
+                            scatter_cones_deg=tuple(float(c) for c in e.get("scatter_cones_deg", d.scatter_cones_deg)),
+                            element_spread=float(e.get("element_spread", d.element_spread)),
+                            element_draws=int(e.get("element_draws", d.element_draws)),
+                            fit_prior_sd=float(e.get("fit_prior_sd", d.fit_prior_sd)))
 
 
 def protocol_settings(config: Mapping) -> ProtocolSettings | None:

@@ -118,6 +118,34 @@ def test_where_and_remainder_say_what_they_are_computed_from(directions, tmp_pat
     assert "prefers the pair `asymmetry+kinematic` (0.90; `asymmetry` alone 0.10)" in which
 
 
+def test_evidence_reading_states_its_choices_and_whether_anything_fits(directions, tmp_path):
+    """The Bayes evidence's second reading (gap.evidence): its choices in the line, and a most probable explanation
+    that does not fit is said not to fit, not named."""
+    ev = {"named": "none", "p_no_effect": 0.003, "most_probable": "direction_scatter",
+          "best_effect": "direction_scatter", "fit_p_most_probable": 1e-5, "fit_p_best_effect": 1e-5, "fits": False,
+          "top3": [["direction_scatter", 0.99], ["origin_offset", 0.005], ["none", 0.003]], "noise_sigma": 0.08,
+          "trials_per_force": 1, "strength_sd": 0.3, "prior_no_effect": 0.5, "threshold": 0.05, "fit_alpha": 0.001}
+    d = _diagnosis(directions)
+    d.summary["evidence"] = ev
+    text = write_report(d, tmp_path / "a.md", {"effects": "e.png", "where": "w.png", "radar": "r.png"},
+                        pd.DataFrame(), "-")
+    line = next(ln for ln in text.splitlines() if ln.startswith("- **Second reading: Bayes evidence**"))
+    assert "log SD of 0.3" in line and "prior P(no effect) 0.5" in line and "largest of 1 trial(s)" in line
+    assert "does **not** fit (chi-square p = 1e-05)" in line and "It names nothing" in line
+    assert "least bad, not what is true" in line
+    d.summary["evidence"] = {**ev, "named": "origin_offset", "most_probable": "origin_offset", "fits": True,
+                             "fit_p_most_probable": 0.4, "p_no_effect": 0.01}
+    text = write_report(d, tmp_path / "b.md", {"effects": "e.png", "where": "w.png", "radar": "r.png"},
+                        pd.DataFrame(), "-")
+    line = next(ln for ln in text.splitlines() if ln.startswith("- **Second reading: Bayes evidence**"))
+    assert "`origin_offset`, which fits (chi-square p = 0.4)" in line and "It names `origin_offset`" in line
+    assert "least bad" not in line
+    del d.summary["evidence"]
+    text = write_report(d, tmp_path / "c.md", {"effects": "e.png", "where": "w.png", "radar": "r.png"},
+                        pd.DataFrame(), "-")
+    assert "Second reading" not in text
+
+
 def _write(diag, directions, out, a3=None):
     inputs = SimpleNamespace(directions=directions, a3=a3, data=SimpleNamespace(name=diag.name), extra_trials=None,
                              settings_text="-")

@@ -72,3 +72,27 @@ def test_answer_lines():
     assert stage.answer_lines(R()) == [
         "done in 12 s: no effect detectable (best kinematic, p = 0.4 > 0.05), held-out gap 0.123 -> 0.100",
         "  to tell `kinematic` from noise, add 3 trials per direction"]
+
+
+def test_diagnose_gives_the_evidence_reading_with_its_choices(tmp_path):
+    """``neckstrength diagnose`` (CI config, S003): summary.json's ``evidence`` (gap.evidence) states its choices, the
+    noise it used and its trials per force (1: the noise is the prior's, no repeats), names an effect only under the
+    stated rule, and report.md carries the line; ``enabled: false`` gives none."""
+    import json
+
+    from neckstrength.config import evidence_settings
+
+    out = tmp_path / "d"
+    rc = main(["diagnose", "--dataset", "S003", "--model", "p2m7", "--config", CONFIG, "--out", str(out)])
+    assert rc in (0, None)
+    s = json.loads((out / "summary.json").read_text())
+    e = s["evidence"]
+    assert (e["strength_sd"], e["prior_no_effect"], e["threshold"], e["fit_alpha"]) == (0.3, 0.5, 0.05, 0.001)
+    assert e["trials_per_force"] == 1 and e["noise_sigma"] == pytest.approx(s["noise_sigma"])
+    assert abs(sum(v for _, v in e["top3"])) <= 1 + 1e-9 and e["top3"][0][0] == e["most_probable"]
+    if e["named"] != "none":
+        assert e["p_no_effect"] < e["threshold"] and e["fit_p_best_effect"] >= e["fit_alpha"]
+    assert "- **Second reading: Bayes evidence**" in (out / "report.md").read_text()
+    cfg = load_config(CONFIG)
+    cfg["gap"]["evidence"] = {**cfg["gap"]["evidence"], "enabled": False}
+    assert evidence_settings(cfg) is None

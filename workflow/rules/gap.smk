@@ -55,7 +55,8 @@ rule gap_diagnose:
         ),
     params:
         settings=settings("chapter5", "data", "gap.bootstrap", "gap.calibration", "gap.discriminate",
-            "gap.effect_settings", "gap.effects", "gap.fit", "gap.folds", "gap.grid_points", "gap.measurements",
+            "gap.effect_settings", "gap.effects", "gap.evidence", "gap.fit", "gap.folds", "gap.grid_points",
+            "gap.measurements",
             "gap.pair_grid_top", "gap.pairs_top", "gap.penalty", "gap.reach_iter", "gap.reach_samples",
             "gap.refine_iter", "gap.refine_starts", "gap.shoulder_muscles", "gap.start_spread", "gap.starts",
             "gap.tie_sides", "gap.protocols", "geometry.head", "geometry.plane_bands", "model",

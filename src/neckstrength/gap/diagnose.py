@@ -636,6 +636,8 @@ def _dataset_result(eng: Engine, i: int, dat: BlindData, cand_datasets, cand_par
                       for r in pws.itertuples()},
             "power_statements": [f"{r.effect}: {r.statement}" for r in pws.itertuples()]})
         cal_summary.update(_aim_scatter(ctx, dat.name, fm, np.log1p(rcv[chosen]), chosen, bool(unexplained), s.seed))
+        if s.evidence is not None:
+            cal_summary["evidence"] = evidence_reading(ctx, dat.name, T, nz, s)
         if s.protocols is not None:
             prot, adv, kappa = _protocol_advice(eng, cal, pws)
             cal_summary.update({"protocol_efficiency": kappa, "protocol_advice": [a["line"] for a in adv],
@@ -662,6 +664,32 @@ def _dataset_result(eng: Engine, i: int, dat: BlindData, cand_datasets, cand_par
     return DatasetDiagnosis(dat.name, resid, planes, comps, muscles, eff_tab, pd.DataFrame(srows), summary, acts,
                             pw, pws, calibration=cal, protocols=prot if cal is not None and s.protocols is not None
                             else pd.DataFrame())
+
+
+def evidence_reading(ctx: GapContext, name: str, forces: np.ndarray, noise, s: DiagnosisSettings) -> dict:
+    """The Bayes evidence's second reading of one data set (:mod:`neckstrength.gap.evidence`, ``s.evidence``; not the
+    decision, heuristic): its explanations made from ``s.effects`` at the noise level ``noise`` (a
+    :class:`neckstrength.gap.calibrate.NoiseLevel`), each recorded force the largest of the data set's trials where
+    the noise comes from repeats (their mean count from the repeats' degrees of freedom), else one trial."""
+    from dataclasses import replace as _replace
+
+    from neckstrength.gap.evidence import Explanations
+
+    K = len(forces)
+    trials = 1
+    if noise.source == "repeats":
+        rows = {str(r[0]): r for r in s.calibration.repeats or ()}
+        if name in rows and np.isfinite(float(rows[name][2])):
+            trials = max(1, int(round(float(rows[name][2]) / K)) + 1)
+    es = _replace(s.evidence, repeats=trials)
+    r = Explanations(ctx, list(s.effects), es).evidence(forces, float(noise.sigma),
+                                                        derive_rng(s.seed, f"gap/evidence/{name}"))
+    top = sorted(r.posterior.items(), key=lambda kv: -kv[1])[:3]
+    return {"named": r.named, "p_no_effect": r.p_no_effect, "most_probable": r.best, "best_effect": r.best_effect,
+            "fit_p_most_probable": r.fit_p, "fit_p_best_effect": r.fit_p_effect,
+            "fits": bool(r.fit_p >= es.fit_alpha), "top3": [[k, v] for k, v in top], "noise_sigma": float(noise.sigma),
+            "trials_per_force": trials, "strength_sd": es.strength_sd, "prior_no_effect": es.prior_no_effect,
+            "threshold": es.threshold, "fit_alpha": es.fit_alpha}
 
 
 #: the name the decision gives a remainder explained by aiming scatter (:mod:`neckstrength.gap.scatter`)

@@ -21,6 +21,7 @@ from neckstrength.gap.forked import fork_map
 from neckstrength.seeds import derive_rng
 
 if TYPE_CHECKING:    # for the annotation only: gap.protocols uses gap.calibrate, which imports this module
+    from neckstrength.gap.evidence import EvidenceSettings
     from neckstrength.gap.protocols import ProtocolSettings
 
 
@@ -100,6 +101,7 @@ class DiagnosisSettings:
     fit: FitSettings = FitSettings()
     calibration: CalibrationSettings = CalibrationSettings(replicates=0)
     protocols: ProtocolSettings | None = None     # what to measure to tell (gap.protocols; None: not computed)
+    evidence: EvidenceSettings | None = None       # the Bayes evidence's second reading (gap.evidence; None: none)
 
 def direction_folds(K: int, folds: int, rng: np.random.Generator) -> np.ndarray:
     """Fold of each direction: a random permutation dealt round-robin (leave-one-out when folds >= K)."""

@@ -16,7 +16,9 @@ the recording noise (the largest of ``repeats`` log-normal trials of log SD ``si
 largest of ``repeats`` standard normals, times ``sigma``), plus strengths known only up to a log-normal factor of SD
 ``strength_sd``, linearised (``strength_sd^2 J J'``, J the derivative of the log forces in the log free strengths).
 The prior gives "no effect" ``prior_no_effect`` (half each to its two forms) and shares the rest equally among the
-effects. An effect is named when the posterior probability of "no effect" is below ``threshold``.
+effects. An effect is named when the posterior probability of "no effect" is below ``threshold`` and the effect
+fits (its best chi-square p-value at least ``fit_alpha``): the posterior says which explanation is least bad, the
+chi-square whether it fits at all.
 
 Measured in ``benchmarks/bench_gap_oracle.py --families diagnosis`` (docs/benchmarks.md#gap-oracle-diagnosis).
 The probabilities are heuristic: checked against the share of controls on the user benchmark's mix of truths only.
@@ -45,7 +47,8 @@ class EvidenceSettings:
     ``threshold`` an effect is named below this P(no effect); ``n_grid`` points of each candidate's screen grid;
     ``scatter_cones_deg`` the aiming cones of ``direction_scatter``; ``element_spread`` / ``element_draws`` the
     element null's log SD and draws; ``repeats`` trials per recorded force (the largest kept); ``fit_prior_sd``
-    the base fit's prior SD of the log strength ratios."""
+    the base fit's prior SD of the log strength ratios; ``fit_alpha`` the named effect must also fit: its best
+    chi-square p-value at least this."""
 
     strength_sd: float = 0.3
     prior_no_effect: float = 0.5
@@ -56,6 +59,7 @@ class EvidenceSettings:
     element_draws: int = 200
     repeats: int = 3
     fit_prior_sd: float = 1.0
+    fit_alpha: float = 0.001
 
 
 def largest_of_normals(repeats: int) -> tuple[float, float]:
@@ -168,9 +172,10 @@ def fit_strengths_map(base: Callable[[np.ndarray], np.ndarray], strengths0: np.n
 @dataclass
 class EvidenceResult:
     """One data set's evidence: log likelihood and posterior per explanation, the probability of "no effect", the
-    most probable effect, the effect named (``none`` unless P(no effect) < threshold), the strengths used, and
-    whether the most probable explanation (``best``, "no effect" included) fits at all: its smallest Mahalanobis
-    distance^2 ``fit_chi2`` and the chi-square upper tail ``fit_p`` with K degrees of freedom (approximate)."""
+    most probable effect, the strengths used, and whether the most probable explanation (``best``, "no effect"
+    included) fits at all: its smallest Mahalanobis distance^2 ``fit_chi2`` and the chi-square upper tail ``fit_p``
+    with K degrees of freedom (approximate); ``fit_p_effect`` the same for the most probable effect. ``named``: that
+    effect where P(no effect) < ``threshold`` and ``fit_p_effect`` >= ``fit_alpha``, else ``none``."""
 
     loglik: dict[str, float]
     posterior: dict[str, float]
@@ -182,6 +187,7 @@ class EvidenceResult:
     best: str = ""
     fit_chi2: float = np.nan
     fit_p: float = np.nan
+    fit_p_effect: float = np.nan
 
 
 class Explanations:
@@ -263,5 +269,7 @@ class Explanations:
         beff = max(effects, key=effects.get)
         best = max(post, key=post.get)
         chi2 = best_fit_chi2(sig[best], J, y, sigma, sd, self.s.repeats)
-        return EvidenceResult(ll, post, p0, beff, beff if p0 < self.s.threshold else "none", f, self.s, best, chi2,
-                              float(stats.chi2.sf(chi2, len(y))))
+        p_eff = float(stats.chi2.sf(best_fit_chi2(sig[beff], J, y, sigma, sd, self.s.repeats), len(y)))
+        named = beff if (p0 < self.s.threshold and p_eff >= self.s.fit_alpha) else "none"
+        return EvidenceResult(ll, post, p0, beff, named, f, self.s, best, chi2, float(stats.chi2.sf(chi2, len(y))),
+                              p_eff)

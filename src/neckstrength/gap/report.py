@@ -322,7 +322,8 @@ def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
                 f"slope test of the squared held-out residuals on the tests' direction sensitivity p = "
                 f"{s['scatter_p']:.3g} (named where the remainder is not explained and p <= {s['scatter_alpha']:g}; "
                 f"{'named' if s.get('scatter_named') else 'not named'}), cone estimate "
-                f"{s['scatter_cone_deg']:.1f} deg (heuristic)."] if "scatter_p" in s else []), "",
+                f"{s['scatter_cone_deg']:.1f} deg (heuristic)."] if "scatter_p" in s else []),
+             *_evidence_lines(s), "",
              *_sensitivity_lines(s),
              "### Power per effect", "",
              "Smallest simulated effect size (share of the way from neutral to the far bound of its range) that this "
@@ -331,6 +332,23 @@ def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
     lines += [f"- `{r.effect}`: {r.statement}" for r in diag.power_summary.itertuples()]
     lines += ["", markdown_table(diag.power), ""]
     return lines
+
+
+def _evidence_lines(s: dict) -> list[str]:
+    """The Bayes evidence's second reading (``gap.evidence``), with its choices and its fit check."""
+    e = s.get("evidence")
+    if not e:
+        return []
+    top = "; ".join(f"`{k}` {v:.2g}" for k, v in e["top3"])
+    fit = ("fits" if e["fits"] else "does **not** fit") + f" (chi-square p = {e['fit_p_most_probable']:.2g})"
+    named = f"names `{e['named']}`" if e["named"] != "none" else "names nothing"
+    return [f"- **Second reading: Bayes evidence** (heuristic, not the decision; `gap.evidence`: strengths known to a "
+            f"log SD of {e['strength_sd']:g}, prior P(no effect) {e['prior_no_effect']:g}, noise "
+            f"{e['noise_sigma']:.3f}, each recorded force the largest of {e['trials_per_force']} trial(s); "
+            f"docs/gap_diagnosis.md, What the 25 tests allow): most probable `{e['most_probable']}`, which {fit}; "
+            f"P(no effect) {e['p_no_effect']:.2g}; top three {top}. It {named} (an effect is named where P(no effect)"
+            f" < {e['threshold']:g} and the effect fits at p >= {e['fit_alpha']:g})."
+            + ("" if e["fits"] else " No explanation fits: the posterior says which is least bad, not what is true.")]
 
 
 def _sensitivity_lines(s: dict) -> list[str]:

@@ -66,7 +66,10 @@ def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summar
                      "a3_mean": s.get("a3_mean", np.nan), "a3_model_mean_base": s.get("a3_model_mean_base", np.nan),
                      "a3_model_mean_chosen": s.get("a3_model_mean_chosen", np.nan),
                      "a3_pearson_base": s.get("a3_pearson_base", np.nan),
-                     "a3_pearson_chosen": s.get("a3_pearson_chosen", np.nan)})
+                     "a3_pearson_chosen": s.get("a3_pearson_chosen", np.nan),
+                     "evidence_most_probable": (s.get("evidence") or {}).get("most_probable", ""),
+                     "evidence_fits": (s.get("evidence") or {}).get("fits", ""),
+                     "evidence_named": (s.get("evidence") or {}).get("named", "")})
         e = pd.read_csv(ep, comment="#")
         e["dataset"] = ds
         ranks.append(e)
@@ -79,12 +82,14 @@ def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summar
                    "model_too_strong_in": df["model_too_strong_in"].mode().iloc[0], "worst_directions": "",
                    "unreachable": "", "chosen": df["chosen"].mode().iloc[0], "chosen_theta": "", "decision": "",
                    "noise_source": "",
-                   "remainder": ""})
+                   "remainder": "", "evidence_most_probable": "", "evidence_fits": "", "evidence_named": ""})
     df = pd.concat([df, pd.DataFrame([pooled])], ignore_index=True)
     atomic_write_csv(df, out_csv, [f"gap diagnosis pooled over data sets ({model_name}): where / which / how far, "
                                    "held-out gap = 1 - D_cv (Eq. 5.5 on held-out directions)",
                                    "a3_*: Table A.3 (withheld) vs the model's mean activation of the EMG-recorded "
-                                   "groups; base = fitted model, chosen = with the chosen effect"],
+                                   "groups; base = fitted model, chosen = with the chosen effect",
+                                   "evidence_*: the Bayes evidence's second reading (gap.evidence; heuristic): most "
+                                   "probable explanation, whether it fits (chi-square), the effect it names"],
                      float_format="%.4g")
     allr = pd.concat(ranks, ignore_index=True)
     rk = allr.groupby("candidate").agg(n_datasets=("dataset", "nunique"), mean_score=("score", "mean"),
@@ -104,7 +109,7 @@ def benchmark_setup(config: Mapping, model_name: str, directions: pd.DataFrame):
     ctx = gap_context(config, model_name, directions)
     b = config["gap"]["benchmark"]
     bs = benchmark_settings(config)
-    ds = diagnosis_settings(config, b.get("diagnosis_effects"), protocols=False)
+    ds = diagnosis_settings(config, b.get("diagnosis_effects"), protocols=False, evidence=False)
     cal = calibration_settings({"gap": {"calibration": {**(config["gap"].get("calibration") or {}),
                                                          **(b.get("calibration") or {})}}})
     ds = DiagnosisSettings(**{**ds.__dict__, "folds": b.get("folds", ds.folds),
