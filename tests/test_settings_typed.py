@@ -216,8 +216,8 @@ ROW_IDS = ["chapter5:ABC", "chapter5.smc:SMC", "chapter5:Dataset", "chapter6:Dat
            "chapter6.joint:Joint", "chapter6:Joint", "estimate", "gap:Diagnosis", "gap.fit", "gap.calibration",
            "gap.discriminate", "gap.discriminate.pool", "gap.protocols", "gap.evidence", "gap.benchmark",
            "clinician.decision", "clinician.deficit", "decision_study:Cohort", "decision_study:Study", "session",
-           "identifiability:Profile", "identifiability:Study", "reruns", "reruns.chapter5", "chapter3.synthetic", "chapter3", "trials.settings",
-           "scorecard"]
+           "identifiability:Profile", "identifiability:Study", "reruns", "reruns.chapter5", "chapter3.synthetic",
+           "chapter3", "trials.settings", "scorecard"]
 
 
 @pytest.mark.parametrize("row", range(len(ROW_IDS)), ids=ROW_IDS)
