@@ -162,7 +162,7 @@ class DiagnosisFamilies:
     def jacobian(self, f):
         from neckstrength.gap.evidence import log_jacobian
 
-        return log_jacobian(self.e.base, f, self.e.pidx)
+        return log_jacobian(self.e.base, f, self.e.pidx, base_rows=self.e.base_rows)
 
     def signatures(self, f, rng):
         return self.e.signatures(f, rng)

@@ -123,17 +123,18 @@ def posterior(loglik: dict[str, float], logprior: dict[str, float]) -> dict[str,
 
 
 def log_jacobian(base: Callable[[np.ndarray], np.ndarray], f: np.ndarray, pidx: np.ndarray,
-                 eps: float = 0.01) -> np.ndarray:
+                 eps: float = 0.01, base_rows: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """``d log force / d log free strength`` (K x p) of ``base`` at strengths ``f`` (forward differences; ``pidx``
-    maps each muscle to its free strength)."""
-    b = np.log(base(f))
-    return np.array([(np.log(base(f * np.exp(eps * (pidx == j)))) - b) / eps
-                     for j in range(int(pidx.max()) + 1)]).T
+    maps each muscle to its free strength). ``base_rows`` (optional): the same forces for many strength vectors
+    (N x m -> N x K) in one call, so the p + 1 evaluations are one batch of LPs."""
+    F = np.vstack([f] + [f * np.exp(eps * (pidx == j)) for j in range(int(pidx.max()) + 1)])
+    L = np.log(base_rows(F) if base_rows is not None else np.array([base(x) for x in F]))
+    return ((L[1:] - L[0]) / eps).T
 
 
 def fit_strengths_map(base: Callable[[np.ndarray], np.ndarray], strengths0: np.ndarray, pidx: np.ndarray,
                       y: np.ndarray, sigma: float, repeats: int, prior_sd: float = 1.0,
-                      iters: int = 200) -> np.ndarray:
+                      iters: int = 200, base_rows: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """Strengths of the base model fitted to the recorded log forces ``y``: the most probable log free strength ratios
     to ``strengths0`` under a normal prior of SD ``prior_sd``, the largest-of-trials bias removed (damped
     Gauss-Newton from ``strengths0`` scaled to the forces' mean)."""
@@ -152,7 +153,7 @@ def fit_strengths_map(base: Callable[[np.ndarray], np.ndarray], strengths0: np.n
     r = t - np.log(base(f_of(phi)))
     mu = 1e-2
     for _ in range(iters):
-        J = log_jacobian(base, f_of(phi), pidx)
+        J = log_jacobian(base, f_of(phi), pidx, base_rows=base_rows)
         H = J.T @ J + w * np.eye(p)
         new = phi + np.linalg.solve(H + mu * np.diag(np.diag(H)), J.T @ r - w * phi)
         with np.errstate(divide="ignore"):
@@ -223,9 +224,12 @@ class Explanations:
     def base(self, f: np.ndarray) -> np.ndarray:
         return self.base_sim.forces(np.asarray(f, float)[None, :])[0]
 
+    def base_rows(self, F: np.ndarray) -> np.ndarray:
+        return self.base_sim.forces(np.atleast_2d(np.asarray(F, float)))
+
     def fit(self, y: np.ndarray, sigma: float) -> np.ndarray:
         return fit_strengths_map(self.base, self.ctx.model.strengths, self.pidx, y, sigma, self.s.repeats,
-                                 self.s.fit_prior_sd)
+                                 self.s.fit_prior_sd, base_rows=self.base_rows)
 
     def signatures(self, f: np.ndarray, rng: np.random.Generator) -> Signatures:
         from neckstrength.gap.scatter import ScatterSettings, direction_sensitivity
@@ -261,7 +265,7 @@ class Explanations:
         y = np.log(np.asarray(forces, float))
         f = self.fit(y, sigma) if strengths is None else np.asarray(strengths, float)
         sd = self.s.strength_sd if strength_sd is None else float(strength_sd)
-        sig, J = self.signatures(f, rng), log_jacobian(self.base, f, self.pidx)
+        sig, J = self.signatures(f, rng), log_jacobian(self.base, f, self.pidx, base_rows=self.base_rows)
         ll = log_evidence(sig, J, y, sigma, sd, self.s.repeats)
         post = posterior(ll, self.logprior())
         p0 = sum(post.get(t, 0.0) for t in NO_EFFECT)
