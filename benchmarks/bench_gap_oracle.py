@@ -159,6 +159,9 @@ class DiagnosisFamilies:
     def fit_base(self, y, sigma):
         return self.e.fit(y, sigma)
 
+    def explain(self, y, sigma, rng, strengths=None):
+        return self.e.explain(y, sigma, rng, strengths)
+
     def jacobian(self, f):
         from neckstrength.gap.evidence import log_jacobian
 
@@ -234,13 +237,18 @@ def _one(job):
     i, f, y, sigma, sds, plug_in = job
     out = {}
     for k, orc in _W["oracles"].items():
-        if plug_in:
-            f = orc.fit_base(y, sigma)
-        sig = orc.signatures(f, derive_rng(_W["seed"], "gap-oracle", i, k))
-        J = orc.jacobian(f)
+        rng = derive_rng(_W["seed"], "gap-oracle", i, k)
+        if hasattr(orc, "explain"):  # the diagnosis's explanations: each effect at strengths refitted under it
+            _, sig, J = orc.explain(y, sigma, rng, None if plug_in else f)
+        else:
+            if plug_in:
+                f = orc.fit_base(y, sigma)
+            sig = orc.signatures(f, rng)
+            J = orc.jacobian(f)
         for sd in sds:
             out[(k, sd)] = (orc.loglik(sig, J, y, sigma, sd),
-                            {t: best_fit_chi2(c, J, y, sigma, sd, orc.repeats) for t, c in sig.items()})
+                            {t: best_fit_chi2(c, J[t] if isinstance(J, dict) else J, y, sigma, sd, orc.repeats)
+                             for t, c in sig.items()})
     return out
 
 

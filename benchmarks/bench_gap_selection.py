@@ -122,6 +122,9 @@ def main(argv=None) -> pd.DataFrame:
     a = ap.parse_args(argv)
     rows = [json.loads(x) for x in Path(a.rows).read_text().splitlines() if x.strip()]
     rows = [r for r in rows if "decision_inputs" in r]
+    # the calibrated test's rules: where the Bayes evidence decided the run, its calibrated test's choice is the one
+    # re-decided here
+    rows = [{**r, "named": r.get("named_calibrated", r["named"])} for r in rows]
     if not rows:
         raise SystemExit(f"{a.rows}: no row with decision_inputs (rows written before 2026-11-28 lack them)")
     mism = {rule: [r["case"] for r in rows if redecide(r["decision_inputs"], rule, a.alpha)

@@ -426,7 +426,12 @@ def evidence_settings(config: Mapping):
                             scatter_cones_deg=tuple(float(c) for c in e.get("scatter_cones_deg", d.scatter_cones_deg)),
                             element_spread=float(e.get("element_spread", d.element_spread)),
                             element_draws=int(e.get("element_draws", d.element_draws)),
-                            fit_prior_sd=float(e.get("fit_prior_sd", d.fit_prior_sd)))
+                            fit_prior_sd=float(e.get("fit_prior_sd", d.fit_prior_sd)),
+                            fit_starts=int(e.get("fit_starts", d.fit_starts)),
+                            refit_top=int(e.get("refit_top", d.refit_top)),
+                            refit_starts=int(e.get("refit_starts", d.refit_starts)),
+                            sample_points=int(e.get("sample_points", d.sample_points)),
+                            decides=bool(e.get("decides", d.decides)))
 
 
 def protocol_settings(config: Mapping) -> ProtocolSettings | None:

@@ -105,6 +105,8 @@ STREAMS: tuple[Stream, ...] = (
            "the element null's strength factors per element and replicate (key + '/{tag}' for a tagged null)"),
     Stream(("gap/starts/{key}/{dataset}",), "gap.engine", "a refit's random starts", extra="fold + 1"),
     Stream(("gap/scatter/{dataset}",), "gap.diagnose (aiming scatter)", "the aiming-scatter test's simulation"),
+    Stream(("gap/evidence/prior/{effect}",), "gap.evidence.prior_points (seed: HASH_SEED)",
+           "the quasi-random points of an effect's parameter box (a constant quadrature rule)"),
     Stream(("gap/evidence/{dataset}",), "gap.diagnose (the evidence's second reading)",
            "the element null's draws of the Bayes evidence (gap.evidence)"),
     # clinician session (neckstrength session, the app)

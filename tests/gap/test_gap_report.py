@@ -146,6 +146,37 @@ def test_evidence_reading_states_its_choices_and_whether_anything_fits(direction
     assert "Second reading" not in text
 
 
+def test_evidence_as_the_decision_keeps_the_calibrated_test_beside_it(directions, tmp_path):
+    """gap.evidence.decides: the summary's named effect and decision are the evidence's, the calibrated test's are
+    kept, and the report says which rule decided (heading, Named effect, Calibrated test, Which)."""
+    from neckstrength.gap.diagnose import evidence_decision
+
+    ev = {"named": "origin_offset", "p_no_effect": 0.002, "most_probable": "origin_offset",
+          "best_effect": "origin_offset", "fit_p_most_probable": 0.4, "fit_p_best_effect": 0.4, "fits": True,
+          "top3": [["origin_offset", 0.99], ["none", 0.002], ["asymmetry", 0.001]], "noise_sigma": 0.04,
+          "trials_per_force": 3, "strength_sd": 0.3, "prior_no_effect": 0.5, "threshold": 0.01, "fit_alpha": 0.001}
+    d = _diagnosis(directions)
+    before = d.summary["decision"]
+    d.summary["evidence"] = ev
+    d.summary.update(evidence_decision(d.summary))
+    assert d.summary["named"] == "origin_offset" and d.summary["named_calibrated"] == "asymmetry"
+    assert d.summary["decision_calibrated"] == before and d.summary["decided_by"] == "evidence"
+    assert "P(no effect) 0.002 < 0.01" in d.summary["decision"]
+    text = write_report(d, tmp_path / "d.md", {"effects": "e.png", "where": "w.png", "radar": "r.png"},
+                        pd.DataFrame(), "-")
+    assert "## Decision (Bayes evidence; the calibrated test beside it)" in text
+    named = next(ln for ln in text.splitlines() if ln.startswith("- **Named effect**"))
+    assert named.startswith("- **Named effect**: origin_offset (Bayes evidence")
+    cal = next(ln for ln in text.splitlines() if ln.startswith("- **Calibrated test**"))
+    assert before in cal and "Adjusted p-value" in cal
+    assert any(ln.startswith("- **Bayes evidence** (the decision") for ln in text.splitlines())
+    which = next(ln for ln in text.splitlines() if ln.startswith("- **Which**"))
+    assert "The decision is the Bayes evidence's" in which and "calibrated test beside it names `asymmetry`" in which
+    # a most probable effect that does not fit is not named, and the decision says why
+    nf = evidence_decision({**d.summary, "evidence": {**ev, "named": "none", "fit_p_best_effect": 1e-6}})
+    assert nf["named"] == "none" and "does not fit" in nf["decision"]
+
+
 def _write(diag, directions, out, a3=None):
     inputs = SimpleNamespace(directions=directions, a3=a3, data=SimpleNamespace(name=diag.name), extra_trials=None,
                              settings_text="-")

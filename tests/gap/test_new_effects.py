@@ -39,8 +39,10 @@ def test_bounds_enforced(ctx_s3, name):
         compose(ctx_s3, [e], [e.upper + 0.01 * (e.upper - e.lower)])
     with pytest.raises(ValueError, match="outside bounds"):
         compose(ctx_s3, [e], [e.lower - 0.01 * (e.upper - e.lower)])
-    # two-sided except posture_drift (the head gives way in the direction of the push only: 0 to the bound)
-    assert all((p.lo == p.neutral if name == "posture_drift" else p.lo < p.neutral) and p.neutral < p.hi
+    # two-sided except posture_drift (the head gives way in the direction of the push only: 0 to the bound) and the
+    # effort lobe's width (1, the broadest lobe, to the bound)
+    one_sided = {"posture_drift": {"drift_deg"}, "submaximal_effort": {"lobe_power"}}.get(name, set())
+    assert all((p.lo == p.neutral if p.name in one_sided else p.lo < p.neutral) and p.neutral < p.hi
                for p in e.params())
 
 
@@ -50,13 +52,32 @@ def test_effort_stays_within_its_range(ctx_s3):
     e = EFFECTS["submaximal_effort"](ctx_s3)
     base = base_instance(ctx_s3)
     f0 = _forces(ctx_s3, base)
-    for corner in ([1, 1, 1], [-1, 1, -1], [1, -1, 0]):
-        th = np.array(corner, float) * e.upper
+    for corner in ([1, 1, 1, 1], [-1, 1, -1, 4], [1, -1, 0, 2.5]):
+        th = np.r_[np.array(corner[:3], float) * e.upper[:3], corner[3]]
         eff = e.effort(base.N, th)
         assert eff.min() >= 0.6 - 1e-12 and eff.max() <= 1 + 1e-12
         np.testing.assert_allclose(_forces(ctx_s3, compose(ctx_s3, [e], [th])), eff * f0, rtol=1e-6)
     with pytest.raises(ValueError, match="min_effort"):
         EFFECTS["submaximal_effort"](ctx_s3, min_effort=1.2).params()
+
+
+def test_effort_lobe_width(ctx_s3):
+    """Width 1 is the dipole 1 - |b| - b.n (the shape before the width); a narrower lobe (width 3) lowers the effort
+    only near the lobe's direction: the same minimum along b, more directions at full effort; the screen grid keeps
+    the 13 dipole points (the width has no axis there: b = 0 is neutral at any width)."""
+    e = EFFECTS["submaximal_effort"](ctx_s3)
+    N = base_instance(ctx_s3).N
+    Nh = N / np.linalg.norm(N, axis=1, keepdims=True)
+    b = np.array([0.12, -0.05, 0.08])
+    np.testing.assert_allclose(e.effort(N, np.r_[b, 1.0]), 1 - np.linalg.norm(b) - Nh @ b, atol=1e-12)
+    wide, narrow = e.effort(N, np.r_[b, 1.0]), e.effort(N, np.r_[b, 3.0])
+    assert np.all(narrow >= wide - 1e-12) and (narrow > wide + 0.01).sum() >= 5
+    k = int(np.argmax(Nh @ b))
+    assert narrow[k] < 0.9 and abs(narrow[k] - wide[k]) < 0.06
+    grid = e.grid(5)
+    assert len(grid) == 13 and all(t[3] == 1.0 for t in grid)
+    with pytest.raises(ValueError, match="max_lobe_power"):
+        EFFECTS["submaximal_effort"](ctx_s3, max_lobe_power=0.5).params()
 
 
 def test_posture_drift_reaches_the_tables(ctx_p2):

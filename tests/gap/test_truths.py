@@ -152,6 +152,35 @@ def test_scoring_counts_detectable_cases_against_the_controls_threshold():
     assert (refit["cases"], refit["count"]) == (21, 1)
 
 
+def test_scoring_counts_the_second_reading_apart_from_the_decision():
+    """The Bayes evidence's reading (summary["evidence"]) is scored against the same targets and controls as the
+    decision, and a case without it is left out of its groups."""
+    from neckstrength.gap.scoring import case_row
+
+    effects = pd.DataFrame({"candidate": ["none", "asymmetry"], "gap_cv": [0.3, 0.1], "rms_rel_cv": [0.2, 0.05]})
+
+    def one(name, truth, target, named, ev_named, gap):
+        summ = {"named": named, "noise_sigma": 0.05, "gap_over_noise": 2.0,
+                **({"evidence": {"named": ev_named, "best_effect": "asymmetry", "p_no_effect": 0.01,
+                                 "fit_p_best_effect": 0.5}} if ev_named else {})}
+        r = case_row(name, truth, target, ["asymmetry"], summ, effects.assign(gap_cv=[gap, gap / 2]))
+        return r
+
+    rows = [one(f"c{i}", "none", "none", "none", "asymmetry" if i == 0 else "none", 0.01 * (i + 1))
+            for i in range(20)]
+    rows += [one("e1", "asymmetry", "asymmetry", "none", "asymmetry", 0.5),
+             one("e2", "asymmetry", "asymmetry", "asymmetry", "none", 0.6),
+             one("e3", "asymmetry", "asymmetry", "asymmetry", None, 0.7)]
+    assert rows[0]["evidence_named"] == "asymmetry" and "evidence_named" not in rows[-1]
+    pc, tab, _ = score_cases(rows)
+    t = tab.set_index("group")
+    ev = t.loc["second reading (Bayes evidence): detectable effect cases whose target is a candidate: named correctly"]
+    assert (ev["cases"], ev["count"]) == (2, 1)                      # e3 has no reading; e1 right, e2 wrong
+    assert t.iloc[0]["count"] == 2                                    # the decision: e2 and e3
+    fa = t.loc["second reading (Bayes evidence): controls: an effect named (false alarm)"]
+    assert (fa["cases"], fa["count"]) == (20, 1)
+
+
 def test_reduced_benchmark_runs_end_to_end(tmp_path):
     """The benchmark script on the CI config (p2m7): 3 cases, scored; a rerun resumes them."""
     cfg = ROOT / "config" / "config.ci.yaml"

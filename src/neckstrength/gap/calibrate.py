@@ -138,9 +138,13 @@ def screen(ctx: GapContext, data: list[BlindData], folds: np.ndarray, effects: l
 
 
 def size_theta(e: Effect, u: float, sign: int) -> np.ndarray:
-    """Parameters ``u`` of the way from neutral to a bound (the upper one for ``sign`` > 0 where both exist)."""
+    """Parameters ``u`` of the way from neutral to a bound (the upper one for ``sign`` > 0 where both exist); a shape
+    parameter (:attr:`neckstrength.gap.effects.Param.shape`) stays neutral."""
     th = []
     for p in e.params():
+        if p.shape:
+            th.append(p.neutral)
+            continue
         up, down = p.hi - p.neutral, p.neutral - p.lo
         if up > 1e-12 and down > 1e-12:
             far = p.hi if sign > 0 else p.lo

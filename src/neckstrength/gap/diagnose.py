@@ -35,7 +35,7 @@ from __future__ import annotations
 import contextlib
 import json
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -638,6 +638,8 @@ def _dataset_result(eng: Engine, i: int, dat: BlindData, cand_datasets, cand_par
         cal_summary.update(_aim_scatter(ctx, dat.name, fm, np.log1p(rcv[chosen]), chosen, bool(unexplained), s.seed))
         if s.evidence is not None:
             cal_summary["evidence"] = evidence_reading(ctx, dat.name, T, nz, s)
+            if s.evidence.decides:
+                cal_summary.update(evidence_decision(cal_summary))
         if s.protocols is not None:
             prot, adv, kappa = _protocol_advice(eng, cal, pws)
             cal_summary.update({"protocol_efficiency": kappa, "protocol_advice": [a["line"] for a in adv],
@@ -690,6 +692,25 @@ def evidence_reading(ctx: GapContext, name: str, forces: np.ndarray, noise, s: D
             "fits": bool(r.fit_p >= es.fit_alpha), "top3": [[k, v] for k, v in top], "noise_sigma": float(noise.sigma),
             "trials_per_force": trials, "strength_sd": es.strength_sd, "prior_no_effect": es.prior_no_effect,
             "threshold": es.threshold, "fit_alpha": es.fit_alpha}
+
+
+def evidence_decision(summary: Mapping) -> dict:
+    """The summary's decision taken from the Bayes evidence's reading (``gap.evidence.decides``): ``named`` and
+    ``decision`` become the evidence's, the calibrated test's (after its aiming-scatter step) are kept as
+    ``named_calibrated`` / ``decision_calibrated``; ``decided_by`` says which rule decided."""
+    e = summary["evidence"]
+    if e["named"] != "none":
+        text = (f"{e['named']} (Bayes evidence: P(no effect) {e['p_no_effect']:.2g} < {e['threshold']:g} and it fits, "
+                f"chi-square p = {e['fit_p_best_effect']:.2g} >= {e['fit_alpha']:g}; heuristic probabilities)")
+    elif e["p_no_effect"] < e["threshold"]:
+        text = (f"none (Bayes evidence: P(no effect) {e['p_no_effect']:.2g} is low, but the most probable effect "
+                f"{e['best_effect']} does not fit, chi-square p = {e['fit_p_best_effect']:.2g} < {e['fit_alpha']:g})")
+    else:
+        text = (f"none (Bayes evidence: P(no effect) {e['p_no_effect']:.2g} >= {e['threshold']:g}; most probable effect "
+                f"{e['best_effect']})")
+    return {"named_calibrated": summary.get("named", summary.get("chosen", "none")),
+            "decision_calibrated": summary.get("decision", ""), "named": e["named"], "decision": text,
+            "decided_by": "evidence"}
 
 
 #: the name the decision gives a remainder explained by aiming scatter (:mod:`neckstrength.gap.scatter`)

@@ -45,7 +45,8 @@ from neckstrength.model.reduction import ReducedModel
 
 @dataclass(frozen=True)
 class Param:
-    """One bounded effect parameter; ``neutral`` reproduces the base model."""
+    """One bounded effect parameter; ``neutral`` reproduces the base model. ``shape``: a parameter of the effect's
+    shape, not its size (the effort lobe's width): the power simulation's sizes keep it at ``neutral``."""
 
     name: str
     lo: float
@@ -53,6 +54,7 @@ class Param:
     neutral: float
     unit: str = ""
     doc: str = ""
+    shape: bool = False
 
 
 @dataclass(frozen=True)
@@ -742,24 +744,30 @@ class SubmaximalEffort(Effect):
     """Submaximal effort that differs by direction (pain, fear of pain, unfamiliarity with the direction): the
     participant activates every muscle up to ``effort(n) < 1`` of its maximum in a test whose push has unit force
     direction ``n`` (skull frame), so the measured maximum is ``effort(n)`` times the model's (exactly: with no
-    activation floor the max-wrench LP is homogeneous in the upper bounds). The field is one smooth, low-order
-    function of the push direction (a dipole), ``effort(n) = 1 - |b| - b . n``, three parameters ``b`` (planar
-    models: two, in the sagittal plane), norm capped at ``(1 - min_effort) / 2``: effort lies in
-    ``[min_effort, 1]``, is 1 in the push direction opposite to ``b`` and lowest along ``b``. A constant effort is
-    absorbed by the free strengths exactly (the forces scale with them), so only the directional part can be
-    seen; a dipole cannot absorb a misfit that varies faster over the directions than a cosine.
+    activation floor the max-wrench LP is homogeneous in the upper bounds). The field is one smooth lobe of reduced
+    effort around one push direction: ``effort(n) = 1 - 2|b| ((1 + n . b/|b|) / 2)^w``, the vector ``b`` (three
+    parameters; planar models: two, in the sagittal plane) giving the lobe's direction and depth, norm capped at
+    ``(1 - min_effort) / 2`` so that effort lies in ``[min_effort, 1]``, and ``w`` (``lobe_power``, 1 to
+    ``max_lobe_power``) its width: ``w = 1`` is the broadest lobe, a dipole ``1 - |b| - b . n`` (the only shape
+    before 2026-11-28), larger ``w`` a lobe that recovers full effort closer to the painful direction (``w = 4``:
+    effort half-way back about 47 deg from it). A constant effort is absorbed by the free strengths exactly (the
+    forces scale with them), so only the directional part can be seen; one lobe cannot absorb a misfit that varies
+    faster over the directions.
 
     Bound: voluntary activation in maximal isometric efforts of healthy adults is about 85-100% (twitch
     interpolation; Gandevia 2001 Physiol Rev 81:1725), lower with pain or fear of pain; the set-up has no check
-    of effort (Appendix A). ``min_effort`` 0.6 is a generous floor (a modelling choice)."""
+    of effort (Appendix A). ``min_effort`` 0.6 is a generous floor and the width's range a modelling choice; the
+    user benchmark's effort truths (:mod:`neckstrength.gap.truths`) are lobes of width 2, inside this family
+    (docs/gap_diagnosis.md says what that means for its score)."""
 
     name = "submaximal_effort"
     family = "effort"
     order = 65
-    description = "effort 1 - |b| - b.n by push direction n (smooth dipole field, effort in [min_effort, 1])"
+    description = ("effort 1 - 2|b| ((1 + n.b/|b|) / 2)^w by push direction n (one smooth lobe, effort in "
+                   "[min_effort, 1], width w)")
     source = ("Appendix A (maximal voluntary efforts, no check of effort); Gandevia 2001 Physiol Rev 81:1725 "
               "(voluntary activation of healthy adults 85-100%)")
-    defaults = {"min_effort": 0.6}
+    defaults = {"min_effort": 0.6, "max_lobe_power": 4.0}
 
     def _bmax(self) -> float:
         e = float(self.s["min_effort"])
@@ -769,17 +777,22 @@ class SubmaximalEffort(Effect):
 
     def params(self):
         m = self._bmax()
+        w = float(self.s["max_lobe_power"])
+        if not w >= 1.0:
+            raise ValueError(f"gap.effect_settings.submaximal_effort.max_lobe_power: at least 1, not {w}")
         names = (("b_anterior", "b_superior") if self.ctx.model.planar
                  else ("b_anterior", "b_superior", "b_lateral"))
-        return tuple(Param(n, -m, m, 0.0, "", f"dipole coefficient on the push direction's {n[2:]} component")
-                     for n in names)
+        return tuple(Param(n, -m, m, 0.0, "", f"lobe vector's {n[2:]} component (direction and depth)")
+                     for n in names) + (Param("lobe_power", 1.0, max(w, 1.0 + 1e-9), 1.0, "",
+                                              "lobe width exponent (1: a dipole, larger: narrower)", shape=True),)
 
     def grid(self, n: int) -> list[np.ndarray]:
-        """Neutral and the points along each coefficient axis (``n`` values per axis from lower to upper bound,
-        neutral left out): dipoles along the skull axes, 1 + 12 = 13 points for three parameters (the full product
-        would have 125); oblique dipoles are left to the refinement. (The corners of the box as well, 21 points,
-        cost 8 more fits per problem and did not change the simulated power on S003: docs/gap_diagnosis.md.)"""
-        ps = self.params()
+        """Neutral and the points along each axis of ``b`` at width 1 (``n`` values per axis from lower to upper
+        bound, neutral left out): dipoles along the skull axes, 1 + 12 = 13 points for three axes (the full product
+        would have 125); oblique and narrower lobes are left to the refinement. (The corners of the box as well, 21
+        points, cost 8 more fits per problem and did not change the simulated power on S003: docs/gap_diagnosis.md.)
+        The width does not move the neutral point (``b = 0``: effort 1 at any width), so it has no axis here."""
+        ps = self.params()[:-1]
         pts = [self.neutral]
         for a, p in enumerate(ps):
             for v in np.linspace(p.lo, p.hi, max(2, int(n))):
@@ -792,15 +805,22 @@ class SubmaximalEffort(Effect):
         return pts
 
     def effort(self, N: np.ndarray, theta: np.ndarray) -> np.ndarray:
-        """Effort (K,) of tests with unit force directions ``N`` (K x 3) at parameters ``theta``."""
+        """Effort (K,) of tests with unit force directions ``N`` (K x 3) at parameters ``theta`` (``b``, then the
+        width; without the width: 1)."""
+        theta = np.asarray(theta, float)
+        nb_params = len(self.params()) - 1
+        w = float(theta[nb_params]) if len(theta) > nb_params else 1.0
         b = np.zeros(3)
-        b[:len(theta)] = np.asarray(theta, float)
+        b[:nb_params] = theta[:nb_params]
         nb = float(np.linalg.norm(b))
         m = self._bmax()
         if nb > m:
             b, nb = b * (m / nb), m
+        if nb == 0.0:
+            return np.ones(len(N))
         Nh = N / np.linalg.norm(N, axis=1, keepdims=True)
-        return np.clip(1.0 - nb - Nh @ b, 1.0 - 2.0 * m, 1.0)
+        c = np.clip(Nh @ (b / nb), -1.0, 1.0)
+        return np.clip(1.0 - 2.0 * nb * ((1.0 + c) / 2.0) ** max(w, 1.0), 1.0 - 2.0 * m, 1.0)
 
     def apply(self, inst, theta):
         e = self.effort(inst.N, theta)

@@ -67,7 +67,11 @@ def ranking_note(s: Mapping, effects: pd.DataFrame) -> str:
     pb = ef["p_best"].astype(float)
     calibrated = bool(s.get("calibrated"))
     out = []
-    if named != chosen:     # aiming scatter: named by the remainder's shape test, not a ranked candidate
+    if s.get("decided_by") == "evidence":
+        out.append(f"The decision is the Bayes evidence's (`gap.evidence.decides`): it names `{named}`; the calibrated "
+                   f"test beside it names `{s.get('named_calibrated', chosen)}`, and what follows is about the "
+                   "calibrated test's choice.")
+    elif named != chosen:     # aiming scatter: named by the remainder's shape test, not a ranked candidate
         out.append(f"`{named}` is named by the remainder's shape test after the calibrated test's choice `{chosen}`; "
                    "aiming scatter is not a ranked candidate, so the bootstrap says nothing about it.")
     if chosen == "none":
@@ -291,8 +295,14 @@ def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
     if not s.get("calibrated"):
         return ["## Decision", "", "Uncalibrated: no noise-only replicates were simulated (`gap.calibration."
                 "replicates` = 0); the candidate with the best score is reported without a p-value.", ""]
-    lines = ["## Decision (calibrated)", "",
-             f"- **Named effect**: {s['decision']}. Adjusted p-value {s['p_value']:.3g} (maxT over "
+    by_ev = s.get("decided_by") == "evidence"
+    head = (["## Decision (Bayes evidence; the calibrated test beside it)", "",
+             f"- **Named effect**: {s['decision']}. The rule (P(no effect) below the threshold and the effect fits) was "
+             "chosen on the user benchmark's first design and checked on its second (docs/gap_diagnosis.md, The "
+             "decision)."] if by_ev else ["## Decision (calibrated)", ""])
+    lines = [*head,
+             (f"- **Calibrated test** (the decision before 2026-11-28): {s.get('decision_calibrated', '')}. "
+              if by_ev else f"- **Named effect**: {s['decision']}. ") + "Adjusted p-value {s['p_value']:.3g} (maxT over "
              f"{len(diag.power_summary)} effects; {s['replicates']} noise-only replicates simulated from this data "
              f"set's fitted base model, so p-values have resolution {s['p_resolution']:.3g}); the raw p-value of "
              f"the best effect `{s['best_effect_calibrated']}` alone is {s['p_raw_best']:.3g}.",
@@ -313,7 +323,8 @@ def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
              f"{s.get('rms_heldout_log_chosen', np.nan):.3f} = {s.get('gap_over_noise', np.nan):.1f} x the noise "
              f"(noise-only replicates: median {s.get('gap_over_noise_null_median', np.nan):.1f} x; held-out "
              "residuals exceed the noise because the strengths are fitted without the held-out directions).",
-             *([f"- **Caveat**: `{s['chosen']}` is named, but the gap that remains is not explained. The noise-only "
+             *([f"- **Caveat**: `{s['chosen']}` is {'the calibrated test choice' if by_ev else 'named'}, but the gap "
+                "that remains is not explained. The noise-only "
                 "replicates come from the fitted model, which that gap contradicts; an effect that absorbs part of an "
                 "unrelated misfit also beats them. Read the named effect as reducing the misfit by more than noise "
                 "would, not as its cause (docs/gap_diagnosis.md, Current results)."]
@@ -342,7 +353,9 @@ def _evidence_lines(s: dict) -> list[str]:
     top = "; ".join(f"`{k}` {v:.2g}" for k, v in e["top3"])
     fit = ("fits" if e["fits"] else "does **not** fit") + f" (chi-square p = {e['fit_p_most_probable']:.2g})"
     named = f"names `{e['named']}`" if e["named"] != "none" else "names nothing"
-    return [f"- **Second reading: Bayes evidence** (heuristic, not the decision; `gap.evidence`: strengths known to a "
+    role = ("Bayes evidence** (the decision; probabilities heuristic" if s.get("decided_by") == "evidence" else
+            "Second reading: Bayes evidence** (heuristic, not the decision")
+    return [f"- **{role}; `gap.evidence`: strengths known to a "
             f"log SD of {e['strength_sd']:g}, prior P(no effect) {e['prior_no_effect']:g}, noise "
             f"{e['noise_sigma']:.3f}, each recorded force the largest of {e['trials_per_force']} trial(s); "
             f"docs/gap_diagnosis.md, What the 25 tests allow): most probable `{e['most_probable']}`, which {fit}; "

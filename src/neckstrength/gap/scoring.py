@@ -49,6 +49,8 @@ def case_row(name: str, truth: str, target: str, candidates: Iterable[str], summ
     return {"case": name, "truth": truth, "target": target,
             "target_candidate": target == "none" or target in cands,
             "named": named, "p_value": float(summary.get("p_value", np.nan)),
+            "named_calibrated": str(summary.get("named_calibrated", named)),
+            "decided_by": str(summary.get("decided_by", "calibrated")),
             "best_calibrated": str(summary.get("best_effect_calibrated", "")),
             "gap_heldout_base": float(tab.loc["none", "gap_cv"]),
             "rms_rel_heldout_base": float(tab.loc["none", "rms_rel_cv"]),
@@ -59,9 +61,19 @@ def case_row(name: str, truth: str, target: str, candidates: Iterable[str], summ
             "remainder": ("consistent with noise" if consistent else "not explained"
                           if summary.get("remainder_unexplained") else "not testable"),
             "consistent_with_noise": consistent,
-            "named_before_scatter": str(summary.get("named_before_scatter", named)),
+            "named_before_scatter": str(summary.get("named_before_scatter", summary.get("named_calibrated", named))),
             "scatter_p": float(summary.get("scatter_p", np.nan)),
-            "scatter_cone_deg": float(summary.get("scatter_cone_deg", np.nan))}
+            "scatter_cone_deg": float(summary.get("scatter_cone_deg", np.nan)),
+            **_evidence_columns(summary.get("evidence"))}
+
+
+def _evidence_columns(ev: Mapping | None) -> dict:
+    """The second reading's columns (:func:`neckstrength.gap.diagnose.evidence_reading`; empty when absent)."""
+    if not ev:
+        return {}
+    return {"evidence_named": str(ev.get("named", "none")), "evidence_best_effect": str(ev.get("best_effect", "")),
+            "evidence_p_no_effect": float(ev.get("p_no_effect", np.nan)),
+            "evidence_fit_p_best_effect": float(ev.get("fit_p_best_effect", np.nan))}
 
 
 def score_cases(rows: Sequence[Mapping], quantile: float = 0.95, noise_multiple: float = 3.0
@@ -124,6 +136,20 @@ def score_cases(rows: Sequence[Mapping], quantile: float = 0.95, noise_multiple:
         add(f"{t} (target {tgt}{'' if cand else ', ' + NOT_A_CANDIDATE}), detectable: named correctly",
             sel & pc["detectable"], "correct")
         add(f"{t}: model-free detectable", sel, "detectable")
+    if "evidence_named" in pc and pc["evidence_named"].notna().any():
+        # the second reading (Bayes evidence, gap.evidence): the same goals, scored on the cases that carry it
+        has = pc["evidence_named"].notna()
+        pc["evidence_correct"] = has & (pc["evidence_named"] == pc["target"])
+        pc["evidence_false_alarm"] = has & is_ctrl & (pc["evidence_named"] != "none")
+        add("second reading (Bayes evidence): detectable effect cases whose target is a candidate: named correctly",
+            has & det & pc["target_candidate"], "evidence_correct", "share >= 0.8, Wilson lower bound >= 0.7")
+        add("second reading (Bayes evidence): controls: an effect named (false alarm)", has & is_ctrl,
+            "evidence_false_alarm", "share <= 0.1, Wilson upper bound <= 0.1", bad=True)
+        add("second reading (Bayes evidence): 96-element controls: false alarm", has & (pc["truth"] == "rich96"),
+            "evidence_false_alarm")
+        for t in dict.fromkeys(pc.loc[eff, "truth"]):
+            sel = has & (pc["truth"] == t) & pc["detectable"]
+            add(f"second reading (Bayes evidence): {t}, detectable: named correctly", sel, "evidence_correct")
     if "power_detectable" in pc:
         pw = det & pc["power_detectable"].fillna(False).astype(bool)
         add("secondary (the diagnosis's own power analysis calls the case detectable): named correctly", pw,

@@ -57,6 +57,8 @@ def gap_pooled(config: Mapping, model_name: str, datasets: Sequence[str], summar
                      "worst_directions": ";".join(s["worst_directions"]),
                      "unreachable": ";".join(s["unreachable"]) or "-", "chosen": s["chosen"],
                      "chosen_theta": s["chosen_theta"], "p_value": s.get("p_value", np.nan),
+                     "named": s.get("named", s["chosen"]), "decided_by": s.get("decided_by", "calibrated"),
+                     "named_calibrated": s.get("named_calibrated", s.get("named", s["chosen"])),
                      "decision": s.get("decision", ""), "noise_sigma": s.get("noise_sigma", np.nan),
                      "noise_source": s.get("noise_source", ""), "gap_over_noise": s.get("gap_over_noise", np.nan),
                      "remainder": s.get("remainder", ""), "p_best": s["p_best_chosen"],
