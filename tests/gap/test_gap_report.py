@@ -166,7 +166,7 @@ def test_evidence_as_the_decision_keeps_the_calibrated_test_beside_it(directions
                         pd.DataFrame(), "-")
     assert "## Decision (Bayes evidence; the calibrated test beside it)" in text
     named = next(ln for ln in text.splitlines() if ln.startswith("- **Named effect**"))
-    assert named.startswith("- **Named effect**: origin_offset (Bayes evidence")
+    assert named.startswith("- **Named effect**: origin_offset named (Bayes evidence")
     cal = next(ln for ln in text.splitlines() if ln.startswith("- **Calibrated test**"))
     assert before in cal and "Adjusted p-value" in cal
     assert any(ln.startswith("- **Bayes evidence** (the decision") for ln in text.splitlines())

@@ -77,7 +77,7 @@ def test_answer_lines():
 def test_diagnose_gives_the_evidence_reading_with_its_choices(tmp_path):
     """``neckstrength diagnose`` (CI config, S003): summary.json's ``evidence`` (gap.evidence) states its choices, the
     noise it used and its trials per force (1: the noise is the prior's, no repeats), names an effect only under the
-    stated rule, and report.md carries the line; ``enabled: false`` gives none."""
+    stated rule, decides (the shipped configs), and report.md carries the line; ``enabled: false`` gives none."""
     import json
 
     from neckstrength.config import evidence_settings
@@ -92,7 +92,10 @@ def test_diagnose_gives_the_evidence_reading_with_its_choices(tmp_path):
     assert abs(sum(v for _, v in e["top3"])) <= 1 + 1e-9 and e["top3"][0][0] == e["most_probable"]
     if e["named"] != "none":
         assert e["p_no_effect"] < e["threshold"] and e["fit_p_best_effect"] >= e["fit_alpha"]
-    assert "- **Second reading: Bayes evidence**" in (out / "report.md").read_text()
+    # the shipped configs let the evidence decide: the summary's named effect is its, the calibrated test's beside it
+    assert s["decided_by"] == "evidence" and s["named"] == e["named"] and "named_calibrated" in s
+    text = (out / "report.md").read_text()
+    assert "- **Bayes evidence** (the decision" in text and "- **Calibrated test**" in text
     cfg = load_config(CONFIG)
     cfg["gap"]["evidence"] = {**cfg["gap"]["evidence"], "enabled": False}
     assert evidence_settings(cfg) is None

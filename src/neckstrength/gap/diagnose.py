@@ -700,14 +700,15 @@ def evidence_decision(summary: Mapping) -> dict:
     ``named_calibrated`` / ``decision_calibrated``; ``decided_by`` says which rule decided."""
     e = summary["evidence"]
     if e["named"] != "none":
-        text = (f"{e['named']} (Bayes evidence: P(no effect) {e['p_no_effect']:.2g} < {e['threshold']:g} and it fits, "
-                f"chi-square p = {e['fit_p_best_effect']:.2g} >= {e['fit_alpha']:g}; heuristic probabilities)")
+        text = (f"{e['named']} named (Bayes evidence: P(no effect) {e['p_no_effect']:.2g} < {e['threshold']:g} and it "
+                f"fits, chi-square p = {e['fit_p_best_effect']:.2g} >= {e['fit_alpha']:g}; heuristic probabilities)")
     elif e["p_no_effect"] < e["threshold"]:
-        text = (f"none (Bayes evidence: P(no effect) {e['p_no_effect']:.2g} is low, but the most probable effect "
-                f"{e['best_effect']} does not fit, chi-square p = {e['fit_p_best_effect']:.2g} < {e['fit_alpha']:g})")
+        text = (f"no effect named (Bayes evidence: P(no effect) {e['p_no_effect']:.2g} is low, but the most probable "
+                f"effect {e['best_effect']} does not fit, chi-square p = {e['fit_p_best_effect']:.2g} < "
+                f"{e['fit_alpha']:g})")
     else:
-        text = (f"none (Bayes evidence: P(no effect) {e['p_no_effect']:.2g} >= {e['threshold']:g}; most probable effect "
-                f"{e['best_effect']})")
+        text = (f"no effect named (Bayes evidence: P(no effect) {e['p_no_effect']:.2g} >= {e['threshold']:g}, most "
+                f"probable effect {e['best_effect']})")
     return {"named_calibrated": summary.get("named", summary.get("chosen", "none")),
             "decision_calibrated": summary.get("decision", ""), "named": e["named"], "decision": text,
             "decided_by": "evidence"}
