@@ -174,10 +174,10 @@ def test_scoring_counts_the_second_reading_apart_from_the_decision():
     assert rows[0]["evidence_named"] == "asymmetry" and "evidence_named" not in rows[-1]
     pc, tab, _ = score_cases(rows)
     t = tab.set_index("group")
-    ev = t.loc["second reading (Bayes evidence): detectable effect cases whose target is a candidate: named correctly"]
+    ev = t.loc["Bayes evidence reading: detectable effect cases whose target is a candidate: named correctly"]
     assert (ev["cases"], ev["count"]) == (2, 1)                      # e3 has no reading; e1 right, e2 wrong
     assert t.iloc[0]["count"] == 2                                    # the decision: e2 and e3
-    fa = t.loc["second reading (Bayes evidence): controls: an effect named (false alarm)"]
+    fa = t.loc["Bayes evidence reading: controls: an effect named (false alarm)"]
     assert (fa["cases"], fa["count"]) == (20, 1)
 
 

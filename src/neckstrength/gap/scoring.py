@@ -136,20 +136,29 @@ def score_cases(rows: Sequence[Mapping], quantile: float = 0.95, noise_multiple:
         add(f"{t} (target {tgt}{'' if cand else ', ' + NOT_A_CANDIDATE}), detectable: named correctly",
             sel & pc["detectable"], "correct")
         add(f"{t}: model-free detectable", sel, "detectable")
+    if "named_calibrated" in pc and (pc["named_calibrated"] != pc["named"]).any():
+        # the Bayes evidence decided (gap.evidence.decides): the calibrated test beside it, on the same goals
+        pc["calibrated_correct"] = pc["named_calibrated"] == pc["target"]
+        pc["calibrated_false_alarm"] = is_ctrl & (pc["named_calibrated"] != "none")
+        add("calibrated test (beside the evidence's decision): detectable effect cases whose target is a candidate: "
+            "named correctly", det & pc["target_candidate"], "calibrated_correct")
+        add("calibrated test (beside the evidence's decision): controls: an effect named (false alarm)", is_ctrl,
+            "calibrated_false_alarm")
     if "evidence_named" in pc and pc["evidence_named"].notna().any():
-        # the second reading (Bayes evidence, gap.evidence): the same goals, scored on the cases that carry it
+        # the Bayes evidence's reading (gap.evidence; the decision where decided_by is 'evidence'): the same goals,
+        # scored on the cases that carry it
         has = pc["evidence_named"].notna()
         pc["evidence_correct"] = has & (pc["evidence_named"] == pc["target"])
         pc["evidence_false_alarm"] = has & is_ctrl & (pc["evidence_named"] != "none")
-        add("second reading (Bayes evidence): detectable effect cases whose target is a candidate: named correctly",
+        add("Bayes evidence reading: detectable effect cases whose target is a candidate: named correctly",
             has & det & pc["target_candidate"], "evidence_correct", "share >= 0.8, Wilson lower bound >= 0.7")
-        add("second reading (Bayes evidence): controls: an effect named (false alarm)", has & is_ctrl,
+        add("Bayes evidence reading: controls: an effect named (false alarm)", has & is_ctrl,
             "evidence_false_alarm", "share <= 0.1, Wilson upper bound <= 0.1", bad=True)
-        add("second reading (Bayes evidence): 96-element controls: false alarm", has & (pc["truth"] == "rich96"),
+        add("Bayes evidence reading: 96-element controls: false alarm", has & (pc["truth"] == "rich96"),
             "evidence_false_alarm")
         for t in dict.fromkeys(pc.loc[eff, "truth"]):
             sel = has & (pc["truth"] == t) & pc["detectable"]
-            add(f"second reading (Bayes evidence): {t}, detectable: named correctly", sel, "evidence_correct")
+            add(f"Bayes evidence reading: {t}, detectable: named correctly", sel, "evidence_correct")
     if "power_detectable" in pc:
         pw = det & pc["power_detectable"].fillna(False).astype(bool)
         add("secondary (the diagnosis's own power analysis calls the case detectable): named correctly", pw,
