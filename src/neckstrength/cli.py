@@ -435,7 +435,10 @@ def _diagnose_into(args, cfg, model, out, outputs) -> int:
     print(header_line(inputs))
     for line in answer_lines(result):
         print(line)
-    print(f"wrote {out}/report.md: where {s['worst_plane']} / {s['worst_component']}; which {s['chosen']}; "
+    which = s.get("named", s["chosen"])
+    if s.get("decided_by") == "evidence":
+        which = f"{which} (Bayes evidence; calibrated test: {s.get('named_calibrated', s['chosen'])})"
+    print(f"wrote {out}/report.md: where {s['worst_plane']} / {s['worst_component']}; which {which}; "
           f"held-out gap {s['gap_before']:.3f} -> {s['gap_after']:.3f}")
     return 0
 

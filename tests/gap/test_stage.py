@@ -74,7 +74,7 @@ def test_answer_lines():
         "  to tell `kinematic` from noise, add 3 trials per direction"]
 
 
-def test_diagnose_gives_the_evidence_reading_with_its_choices(tmp_path):
+def test_diagnose_gives_the_evidence_reading_with_its_choices(tmp_path, capsys):
     """``neckstrength diagnose`` (CI config, S003): summary.json's ``evidence`` (gap.evidence) states its choices, the
     noise it used and its trials per force (1: the noise is the prior's, no repeats), names an effect only under the
     stated rule, decides (the shipped configs), and report.md carries the line; ``enabled: false`` gives none."""
@@ -94,6 +94,8 @@ def test_diagnose_gives_the_evidence_reading_with_its_choices(tmp_path):
         assert e["p_no_effect"] < e["threshold"] and e["fit_p_best_effect"] >= e["fit_alpha"]
     # the shipped configs let the evidence decide: the summary's named effect is its, the calibrated test's beside it
     assert s["decided_by"] == "evidence" and s["named"] == e["named"] and "named_calibrated" in s
+    printed = capsys.readouterr().out
+    assert f"which {s['named']} (Bayes evidence; calibrated test: {s['named_calibrated']})" in printed
     text = (out / "report.md").read_text()
     assert "- **Bayes evidence** (the decision" in text and "- **Calibrated test**" in text
     cfg = load_config(CONFIG)

@@ -235,8 +235,10 @@ def write_figures(diag: DatasetDiagnosis, directions: pd.DataFrame, out: Mapping
     axe.set_xlabel(f"held-out gap 1 - D_cv + {diag.summary['penalty_per_param']} x extra parameters (lower is better)")
     axe.legend(fontsize=7, loc="lower right")
     how = "calibrated test" if diag.summary.get("calibrated") else "score ranking, uncalibrated"
-    axe.set_title(f"Which effect: {diag.name} ({diag.summary['model']}); red: named ({how}), "
-                  "P(best): bootstrap of the score ranking, pairs included", fontsize=10)
+    red = (f"red: the calibrated test's choice (named by the Bayes evidence: {diag.summary.get('named', 'none')})"
+           if diag.summary.get("decided_by") == "evidence" else f"red: named ({how})")
+    axe.set_title(textwrap.fill(f"Which effect: {diag.name} ({diag.summary['model']}); {red}, "
+                                "P(best): bootstrap of the score ranking, pairs included", 90), fontsize=10)
     fig.tight_layout()
     _save(fig, out["effects"])
     written = {k for k in ("radar", "where", "effects") if k in out}
