@@ -149,10 +149,12 @@ def log_jacobian(base: Callable[[np.ndarray], np.ndarray], f: np.ndarray, pidx: 
 def fit_strengths_map(base: Callable[[np.ndarray], np.ndarray], strengths0: np.ndarray, pidx: np.ndarray,
                       y: np.ndarray, sigma: float, repeats: int, prior_sd: float = 1.0,
                       iters: int = 200, base_rows: Callable[[np.ndarray], np.ndarray] | None = None,
-                      start: np.ndarray | None = None) -> np.ndarray:
+                      start: np.ndarray | None = None, return_loss: bool = False):
     """Strengths of the base model fitted to the recorded log forces ``y``: the most probable log free strength ratios
     to ``strengths0`` under a normal prior of SD ``prior_sd``, the largest-of-trials bias removed (damped
-    Gauss-Newton from ``strengths0`` scaled to the forces' mean, or from the strengths ``start``)."""
+    Gauss-Newton from ``strengths0`` scaled to the forces' mean, or from the strengths ``start``). ``return_loss``:
+    also the objective at the fit (squared log residuals plus the prior's penalty, in units of sigma^2; inf where a
+    force is not positive)."""
     z_mean, _ = largest_of_normals(repeats)
     t = np.asarray(y, float) - z_mean * sigma
     w = (sigma / prior_sd) ** 2
@@ -193,6 +195,9 @@ def fit_strengths_map(base: Callable[[np.ndarray], np.ndarray], strengths0: np.n
             mu *= 10
             if mu > 1e8:
                 break
+    if return_loss:
+        val = float(loss(phi, r))
+        return f_of(phi), (val if np.isfinite(val) else np.inf)
     return f_of(phi)
 
 
@@ -281,7 +286,7 @@ class Explanations:
 
         def run(st=None):
             return fit_strengths_map(one, s0, self.pidx, y, sigma, self.s.repeats, self.s.fit_prior_sd,
-                                     base_rows=many, start=st)
+                                     base_rows=many, start=st, return_loss=True)
 
         fits = [run()] + [run(np.asarray(st, float)) for st in starts]
         n = int(self.s.fit_starts if n_random is None else n_random)
@@ -290,21 +295,7 @@ class Explanations:
             lvl = float(np.mean(np.asarray(y, float) - np.log(one(s0))))
             for _ in range(n):
                 fits.append(run(s0 * np.exp(lvl + rng.normal(0.0, 0.5 * self.s.fit_prior_sd, p))[self.pidx]))
-        return min(fits, key=lambda f: self.map_objective(f, y, sigma, one))
-
-    def map_objective(self, f: np.ndarray, y: np.ndarray, sigma: float, one=None) -> float:
-        """The fit's objective at strengths ``f``: squared log residuals (largest-of-trials bias removed) plus the
-        prior's penalty, in units of sigma^2 (:func:`fit_strengths_map`'s loss); ``one``: the forces (default the
-        base model's)."""
-        z_mean, _ = largest_of_normals(self.s.repeats)
-        s0 = self.ctx.model.strengths
-        with np.errstate(divide="ignore"):
-            r = np.asarray(y, float) - z_mean * sigma - np.log((one or self.base)(f))
-        pos = s0 > 0
-        phi = np.array([float(np.mean(np.log(f[pos & (self.pidx == j)] / s0[pos & (self.pidx == j)])))
-                        if (pos & (self.pidx == j)).any() else 0.0 for j in range(int(self.pidx.max()) + 1)])
-        val = float(r @ r + (sigma / self.s.fit_prior_sd) ** 2 * phi @ phi)
-        return val if np.isfinite(val) else np.inf
+        return min(fits, key=lambda fl: fl[1])[0]
 
     def signatures(self, f: np.ndarray, rng: np.random.Generator) -> Signatures:
         """Every explanation's component(s) at strengths ``f`` (see the module docstring). Sets :attr:`live`: per
