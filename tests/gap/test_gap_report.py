@@ -162,6 +162,7 @@ def test_evidence_as_the_decision_keeps_the_calibrated_test_beside_it(directions
     assert d.summary["named"] == "origin_offset" and d.summary["named_calibrated"] == "asymmetry"
     assert d.summary["decision_calibrated"] == before and d.summary["decided_by"] == "evidence"
     assert "P(no effect) 0.002 < 0.01" in d.summary["decision"]
+    assert d.summary["decision"].endswith("prior P(no effect) 0.5, noise 0.040, strengths to a log SD of 0.3)")
     text = write_report(d, tmp_path / "d.md", {"effects": "e.png", "where": "w.png", "radar": "r.png"},
                         pd.DataFrame(), "-")
     assert "## Decision (Bayes evidence; the calibrated test beside it)" in text

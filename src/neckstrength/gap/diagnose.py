@@ -709,6 +709,9 @@ def evidence_decision(summary: Mapping) -> dict:
     else:
         text = (f"no effect named (Bayes evidence: P(no effect) {e['p_no_effect']:.2g} >= {e['threshold']:g}, most "
                 f"probable effect {e['best_effect']})")
+    # the choices the answer depends on, where it is printed
+    text = text[:-1] + (f"; prior P(no effect) {e['prior_no_effect']:g}, noise {e['noise_sigma']:.3f}, strengths to a "
+                        f"log SD of {e['strength_sd']:g})")
     return {"named_calibrated": summary.get("named", summary.get("chosen", "none")),
             "decision_calibrated": summary.get("decision", ""), "named": e["named"], "decision": text,
             "decided_by": "evidence"}
