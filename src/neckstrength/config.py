@@ -392,8 +392,8 @@ def estimate_settings(config: Mapping, model_name: str):
 def diagnosis_settings(config: Mapping, effects: Sequence[str] | None = None,
                        protocols: bool = True, evidence: bool = True) -> DiagnosisSettings:
     """``gap`` as :class:`DiagnosisSettings`; ``protocols`` / ``evidence`` False: without the power per protocol /
-    the Bayes evidence's second reading (``gap.protocols`` / ``gap.evidence`` not read; the withheld-effect benchmark
-    scores the decision only)."""
+    the Bayes evidence (``gap.protocols`` / ``gap.evidence`` not read; the withheld-effect benchmark scores the
+    calibrated test only)."""
     g = config["gap"]
     f = g["fit"]
     fit = FitSettings(max_iter=f["max_iter"], ridge=f["ridge"], bounds_rel=tuple(f["bounds_rel"]),
@@ -411,7 +411,7 @@ def diagnosis_settings(config: Mapping, effects: Sequence[str] | None = None,
 
 def evidence_settings(config: Mapping):
     """``gap.evidence`` as :class:`neckstrength.gap.evidence.EvidenceSettings` (absent or ``enabled: false``: no
-    second reading)."""
+    evidence, and the calibrated test decides)."""
     from neckstrength.gap.evidence import EvidenceSettings
 
     e = dict(config["gap"].get("evidence") or {})

@@ -669,8 +669,8 @@ def _dataset_result(eng: Engine, i: int, dat: BlindData, cand_datasets, cand_par
 
 
 def evidence_reading(ctx: GapContext, name: str, forces: np.ndarray, noise, s: DiagnosisSettings) -> dict:
-    """The Bayes evidence's second reading of one data set (:mod:`neckstrength.gap.evidence`, ``s.evidence``; not the
-    decision, heuristic): its explanations made from ``s.effects`` at the noise level ``noise`` (a
+    """The Bayes evidence's reading of one data set (:mod:`neckstrength.gap.evidence`, ``s.evidence``; the decision
+    where ``s.evidence.decides``, :func:`evidence_decision`; heuristic probabilities): its explanations made from ``s.effects`` at the noise level ``noise`` (a
     :class:`neckstrength.gap.calibrate.NoiseLevel`), each recorded force the largest of the data set's trials where
     the noise comes from repeats (their mean count from the repeats' degrees of freedom), else one trial."""
     from dataclasses import replace as _replace

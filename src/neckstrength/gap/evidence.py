@@ -1,4 +1,5 @@
-"""Bayes evidence of the diagnosis's explanations of a data set (issue 32; not yet the diagnosis's decision).
+"""Bayes evidence of the diagnosis's explanations of a data set (issue 32; the diagnosis's decision where
+``decides``, the shipped configs' choice).
 
 The calibrated decision (:mod:`neckstrength.gap.calibrate`) asks, per candidate, whether its held-out improvement
 exceeds what noise on the model's own structure gives. This module asks instead which explanation makes the

@@ -348,7 +348,8 @@ def _calibration_lines(diag: DatasetDiagnosis) -> list[str]:
 
 
 def _evidence_lines(s: dict) -> list[str]:
-    """The Bayes evidence's second reading (``gap.evidence``), with its choices and its fit check."""
+    """The Bayes evidence's line (``gap.evidence``; the decision or a second reading), with its choices and its fit
+    check."""
     e = s.get("evidence")
     if not e:
         return []
