@@ -121,7 +121,8 @@ def test_uniform_scaling_changes_nothing(ctx_s3):
 
 @pytest.mark.parametrize("name", NEW)
 def test_fit_finds_an_injected_effect(ctx_s3, name):
-    """Forces simulated with the effect at its far grid point (strengths off baseline, 1% noise; seed 32): fitting
+    """Forces simulated with the effect at its far grid point (the last; for two parameters the corner that changes
+    the baseline forces most: strengths off baseline, 1% noise; seed 32): fitting
     the strengths at every grid point, the injected one fits best and the base model (neutral) clearly worse."""
     rng = np.random.default_rng(32)
     e = EFFECTS[name](ctx_s3)
@@ -130,9 +131,24 @@ def test_fit_finds_an_injected_effect(ctx_s3, name):
     phi = np.array([np.log(ctx_s3.model.strengths[pidx == q].mean()) for q in range(p)]) + rng.normal(0, 0.2, p)
     grid = e.grid(5)
     truth = grid[-1]
+    if e.n_params > 1:
+        change = [np.abs(np.log(_forces(ctx_s3, compose(ctx_s3, [e], [g])) / _forces(ctx_s3, base_instance(ctx_s3))))
+                  .max() for g in grid[1:]]
+        truth = grid[1 + int(np.argmax(change))]
     sim = Simulator(ctx_s3, compose(ctx_s3, [e], [truth]))
     T = sim.forces(sim.muscles(phi[None]))[0] * np.exp(rng.normal(0, 0.01, ctx_s3.K))
     loss = [fit_candidate(ctx_s3, T, "none" if e.is_neutral(g) else name, {name: list(g)})[1] for g in grid]
     best = int(np.argmin(loss))
     np.testing.assert_allclose(grid[best], truth)
     assert loss[0] > 2 * loss[best]
+
+
+def test_head_scale_alone_is_point_scale(ctx_s3):
+    """anthropometric_scaling's head part (s = 0) moves the test points as point_scale does: the same forces; with
+    the neck part the forces differ from every point_scale's."""
+    a, ps = EFFECTS["anthropometric_scaling"](ctx_s3), EFFECTS["point_scale"](ctx_s3)
+    head = _forces(ctx_s3, compose(ctx_s3, [a], [np.array([0.0, 0.1])]))
+    np.testing.assert_allclose(head, _forces(ctx_s3, compose(ctx_s3, [ps], [np.array([0.1])])), rtol=1e-9)
+    both = _forces(ctx_s3, compose(ctx_s3, [a], [np.array([-0.1, 0.1])]))
+    best = min(np.abs(np.log(both / _forces(ctx_s3, compose(ctx_s3, [ps], [g])))).max() for g in ps.grid(31))
+    assert best > 0.02

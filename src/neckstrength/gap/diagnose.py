@@ -40,7 +40,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from neckstrength.gap.calibrate import NoiseLevel, calibrate, power_summary, remainder_verdict
+from neckstrength.gap.calibrate import NoiseLevel, calibrate, estimate_noise, power_summary, remainder_verdict
 from neckstrength.gap.effects import Effect, GapContext, available_effects, effect_label
 from neckstrength.gap.engine import (  # noqa: F401  (BlindData, DiagnosisSettings, direction_folds: public here too)
     BlindData,
@@ -355,22 +355,42 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
     single_cands = ["none"] + [e.name for e in effects]
     tail_args = (eng, cand_keys, per_problem, selections, cv_pred, cand_params, cand_datasets, say)
 
+    pf = [int(np.nonzero((eng.pds == i) & (eng.pfold < 0))[0][0]) for i in range(eng.nd)]
+    Tm = eng.T[pf]
+    rms = np.column_stack([np.sqrt(np.mean(np.log(np.maximum(np.array(cv_pred[c]), 1e-12) / Tm) ** 2,
+                                           axis=1)) for c in single_cands])
+    # the Bayes evidence and the power per protocol need only the forces, the base fit and the noise level (known
+    # before the calibration): with workers they are made in the background process too
+    cs = s.calibration
+
+    def readings() -> list[dict]:
+        out = []
+        for i, d in enumerate(data):
+            r: dict = {}
+            if cs.replicates > 0:
+                nz = estimate_noise(rms[i], cs.noise, d.name, cs.repeats, cs.noise_prior)
+                if s.evidence is not None:
+                    r["evidence"] = evidence_reading(ctx, d.name, np.asarray(d.forces, float), nz, s)
+                if s.protocols is not None:
+                    r["protocol_power"] = _protocol_power(eng, eng.results[()]["phi"][pf[i]], nz.sigma,
+                                                          [e.name for e in effects])
+            out.append(r)
+        return out
+
     def tail_in_worker():
         refined = _pairs_and_refinement(*tail_args)
-        return eng.results, eng.n_fits, (per_problem, selections, cv_pred, cand_params, cand_datasets), refined
+        return (eng.results, eng.n_fits, (per_problem, selections, cv_pred, cand_params, cand_datasets), refined,
+                readings())
 
     background = workers > 1 and s.calibration.replicates > 0
+    evid: list[dict] = [{} for _ in data]
     with (fork_background(tail_in_worker) if background else contextlib.nullcontext()) as fut:
         if s.calibration.replicates > 0:
-            pf = [int(np.nonzero((eng.pds == i) & (eng.pfold < 0))[0][0]) for i in range(eng.nd)]
-            Tm = eng.T[pf]
-            rms = np.column_stack([np.sqrt(np.mean(np.log(np.maximum(np.array(cv_pred[c]), 1e-12) / Tm) ** 2,
-                                                   axis=1)) for c in single_cands])
             cal = calibrate(ctx, names, folds, Tm, eng.results[()]["forces"][pf], eng.results[()]["phi"][pf], rms,
                             effects, s, say, workers, checkpoints)
             say(f"calibration done ({s.calibration.replicates} noise-only replicates per data set)")
         if fut is not None:
-            results, n_fits, parts, refined = fut.result()
+            results, n_fits, parts, refined, evid = fut.result()
             eng.results = results
             eng.n_fits = n_fits
             for d_main, d_worker in zip((per_problem, selections, cv_pred, cand_params, cand_datasets), parts):
@@ -378,11 +398,12 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
             say(f"pairs and refinement (in a worker process; {eng.n_fits} fits so far)")
         else:
             refined = _pairs_and_refinement(*tail_args)
+            evid = readings()
     # ---- per data set results
     out = []
     for i, dat in enumerate(data):
         out.append(_dataset_result(eng, i, dat, cand_datasets, cand_params, selections, refined, cv_pred,
-                                   None if cal is None else cal[i], single_cands))
+                                   None if cal is None else cal[i], single_cands, evid[i]))
         sm = out[-1].summary
         say(f"{dat.name}: {sm['decision']}; held-out gap {sm['gap_before']:.3f} -> {sm['gap_after']:.3f} (1 - D_cv)")
     return out
@@ -490,7 +511,7 @@ def _verdict_word(unexplained: bool | None) -> str:
 
 
 def _dataset_result(eng: Engine, i: int, dat: BlindData, cand_datasets, cand_params, selections, refined,
-                    cv_pred, cal=None, singles=("none",)) -> DatasetDiagnosis:
+                    cv_pred, cal=None, singles=("none",), pre: Mapping | None = None) -> DatasetDiagnosis:
     ctx, s = eng.ctx, eng.s
     K = ctx.K
     T = np.asarray(dat.forces, float)
@@ -637,11 +658,11 @@ def _dataset_result(eng: Engine, i: int, dat: BlindData, cand_datasets, cand_par
             "power_statements": [f"{r.effect}: {r.statement}" for r in pws.itertuples()]})
         cal_summary.update(_aim_scatter(ctx, dat.name, fm, np.log1p(rcv[chosen]), chosen, bool(unexplained), s.seed))
         if s.evidence is not None:
-            cal_summary["evidence"] = evidence_reading(ctx, dat.name, T, nz, s)
+            cal_summary["evidence"] = (pre or {}).get("evidence") or evidence_reading(ctx, dat.name, T, nz, s)
             if s.evidence.decides:
                 cal_summary.update(evidence_decision(cal_summary))
         if s.protocols is not None:
-            prot, adv, kappa = _protocol_advice(eng, cal, pws)
+            prot, adv, kappa = _protocol_advice(eng, cal, pws, (pre or {}).get("protocol_power"))
             cal_summary.update({"protocol_efficiency": kappa, "protocol_advice": [a["line"] for a in adv],
                                 "protocol_choice": {a["effect"]: a["protocol"] for a in adv}})
     summary = {
@@ -745,19 +766,36 @@ def _aim_scatter(ctx: GapContext, name: str, f_fit: np.ndarray, logres_chosen: n
     return out
 
 
-def _protocol_advice(eng: Engine, cal, pws: pd.DataFrame):
-    """Power per protocol (:mod:`neckstrength.gap.protocols`) of the calibration's effects at its noise and base
-    fit, its efficiency fitted to the calibration's simulated power, and the advice lines."""
+def _protocol_settings(eng: Engine):
     from dataclasses import replace as _replace
 
-    from neckstrength.gap.protocols import advice, fit_efficiency, protocol_power, with_efficiency
+    ca, ps = eng.s.calibration, eng.s.protocols
+    return _replace(ps, sizes=tuple(ps.sizes or ca.power_sizes), target=ps.target or ca.power_target)
+
+
+def _protocol_power(eng: Engine, phi_fit: np.ndarray, sigma: float, effects: Sequence[str]) -> pd.DataFrame:
+    """Power per protocol (:func:`neckstrength.gap.protocols.protocol_power`) of ``effects`` at noise ``sigma``
+    and the base fit's log strengths ``phi_fit`` (before the efficiency is fitted)."""
+    from neckstrength.gap.protocols import protocol_power
+
+    effs = [eng.registry[n] for n in effects]
+    return protocol_power(eng.ctx, phi_fit, sigma, effs, _protocol_settings(eng), eng.s.calibration.alpha,
+                          len(effs))
+
+
+def _protocol_advice(eng: Engine, cal, pws: pd.DataFrame, prot: pd.DataFrame | None = None):
+    """Power per protocol (:mod:`neckstrength.gap.protocols`) of the calibration's effects at its noise and base
+    fit (``prot``: made already, e.g. in the background process), its efficiency fitted to the calibration's
+    simulated power, and the advice lines."""
+    from neckstrength.gap.protocols import advice, fit_efficiency, with_efficiency
 
     ca = eng.s.calibration
-    ps = eng.s.protocols
-    ps = _replace(ps, sizes=tuple(ps.sizes or ca.power_sizes), target=ps.target or ca.power_target)
+    ps = _protocol_settings(eng)
     effs = [eng.registry[n] for n in cal.effects]
     npar = {e.name: e.n_params for e in effs}
-    prot = protocol_power(eng.ctx, cal.phi_fit, cal.sigma, effs, ps, ca.alpha, len(effs))
+    if prot is None:
+        prot = _protocol_power(eng, cal.phi_fit, cal.sigma, cal.effects)
+    prot = prot.copy()
     kappa = fit_efficiency(prot, cal.power, ca.alpha, len(effs), npar)
     prot = with_efficiency(prot, kappa, ca.alpha, len(effs), npar)
     prot.insert(len(prot.columns), "efficiency", kappa)

@@ -23,9 +23,9 @@ finer_groups           share of independent control of the elements inside each 
 origin_offset          C0-C1 (skull-frame origin) displaced from its head-pad estimate (x, y)
 point_scale            test points farther from / closer to the head centre than reconstructed
 shoulder_girdle        trapezius and levator scapulae pull on an unfixed scapula: shared anchor capacity
-submaximal_effort      effort below 1 that varies smoothly with the push direction (a dipole field)
+submaximal_effort      effort below 1 that varies smoothly with the push direction (one lobe)
 posture_drift          head-neck flexion / extension drift during the push (shipped posture tables)
-anthropometric_scaling neck size relative to the head (joint spacing and moment arms)
+anthropometric_scaling neck size relative to the head (joint spacing and moment arms), head size at the pads
 =====================  ===============================================================================
 """
 
@@ -965,31 +965,40 @@ class PostureDrift(Effect):
 
 class AnthropometricScaling(Effect):
     """Head and neck size: the model's geometry is one (scaled) adult's (Vasavada et al. 1998 geometry behind the
-    OpenSim model, docs/model_derivation.md), the participant's head and neck are their own. Scaling the head
-    (test points, C0-C1 in the skull frame) and the neck (joint centres, moment arms) by one common factor leaves
-    every predicted force unchanged (torques and lever arms scale alike; tested), and a common factor on the
-    moment arms alone is absorbed by the free strengths, so one parameter is left: the size of the neck relative
-    to the head, ``1 + s``. The joint centres move away from C0-C1 by ``1 + s`` (``c_j -> c_0 + (1 + s)(c_j -
-    c_0)``) and the muscles' moment arms scale by ``1 + s``, the test points and C0-C1 stay where they are in the
-    skull frame (equivalently: the head, test points and C0-C1 offset, scaled by ``1 / (1 + s)``).
+    OpenSim model, docs/model_derivation.md), the participant's head and neck are their own. Two parameters:
 
-    Bound +-15% (``max_scale``): in height-matched men and women, neck dimensions differ by 9-16% and head
-    dimensions by 3-6% (Vasavada, Danaraj and Siegmund 2008 J Biomech 41:114), i.e. the neck-to-head ratio by
-    about 6-10% between the sexes, plus individual spread (head length SD about 4% of its mean, Pheasant and
-    Haslegrave, Bodyspace, 3rd ed., 2006)."""
+    - ``neck_scale`` ``s``: the size of the neck relative to the head. The joint centres move away from C0-C1 by
+      ``1 + s`` (``c_j -> c_0 + (1 + s)(c_j - c_0)``) and the muscles' moment arms scale by ``1 + s``. Scaling the
+      head (test points, C0-C1 in the skull frame) and the neck by one common factor leaves every predicted force
+      unchanged (torques and lever arms scale alike; tested), and a common factor on the moment arms alone is
+      absorbed by the free strengths, so this is the neck's only free size.
+    - ``head_scale`` ``h``: the head's radius at the pads, relative to the model's. The test points move
+      radially from the head centre by ``1 + h`` (``P -> c + (1 + h)(P - c)``), C0-C1 and the joints stay: the
+      pads rest on the skull's surface, whose distance from the head centre varies with head breadth and length
+      more than the occipital condyles' position does. At ``s = 0`` this is ``point_scale`` (a reconstruction
+      error of the points' radius, the same change of the forces); the two are told apart only by ``s``, and the
+      Bayes evidence prefers the one-parameter ``point_scale`` where ``s`` adds nothing.
+
+    Bounds +-15% each (``max_scale``, ``max_head_scale``): in height-matched men and women, neck dimensions differ
+    by 9-16% and head dimensions by 3-6% (Vasavada, Danaraj and Siegmund 2008 J Biomech 41:114), i.e. the
+    neck-to-head ratio by about 6-10% between the sexes, plus individual spread (head length and breadth SD about
+    4% of their means, Pheasant and Haslegrave, Bodyspace, 3rd ed., 2006: +-15% is about 3.5 SD)."""
 
     name = "anthropometric_scaling"
     family = "anthropometry"
     order = 72
-    description = "neck size relative to the head: joint spacing below C0-C1 and moment arms x (1 + s)"
+    description = ("neck size relative to the head (joint spacing below C0-C1 and moment arms x (1 + s)) and head "
+                   "size at the pads (test points from the head centre x (1 + h))")
     source = ("Vasavada, Danaraj and Siegmund 2008 J Biomech 41:114 (head vs neck dimensions); Appendix A (C0-C1 "
               "from the head pad)")
-    defaults = {"max_scale": 0.15}
+    defaults = {"max_scale": 0.15, "max_head_scale": 0.15}
 
     def params(self):
-        m = float(self.s["max_scale"])
+        m, mh = float(self.s["max_scale"]), float(self.s["max_head_scale"])
         return (Param("neck_scale", -m, m, 0.0, "", "relative size of the neck (joint spacing, moment arms) "
-                                                      "against the head"),)
+                                                      "against the head"),
+                Param("head_scale", -mh, mh, 0.0, "", "relative distance of the test points (pads) from the head "
+                                                        "centre"))
 
     def _c0(self, inst: Instance) -> np.ndarray:
         top = [i for i, r in enumerate(inst.rows) if r.startswith("C0-C1_")]
@@ -1002,7 +1011,9 @@ class AnthropometricScaling(Effect):
             {c.split("_")[0] for c in self.ctx.model.coordinates}) >= 2
 
     def apply(self, inst, theta):
-        k = 1.0 + float(theta[0])
+        if inst.J != 1:
+            raise ValueError("anthropometric_scaling must be applied before direction_tolerance")
+        k, kh = 1.0 + float(theta[0]), 1.0 + float(theta[1])
         joint = ~np.isnan(inst.row_centre[:, 0])
         c0 = self._c0(inst).copy()
         centre = inst.row_centre.copy()
@@ -1011,4 +1022,10 @@ class AnthropometricScaling(Effect):
         JT[joint] = _jt_rows(centre[joint], inst.row_axis[joint], inst.planar)
         R = inst.R.copy()
         R[np.ix_(joint, inst.muscle_cols)] *= k
-        return replace(inst, R=R, JT=JT, row_centre=centre)
+        out = replace(inst, R=R, JT=JT, row_centre=centre)
+        if kh == 1.0:
+            return out
+        c = np.asarray(self.ctx.head_centre, float)
+        P = c + kh * (inst.P - c)
+        U, fmul = _wrench(P, inst.N)
+        return replace(out, P=P, U6=U[:, None, :], fmul=fmul[:, None])
