@@ -199,8 +199,11 @@ def test_exact_gradient_matches_finite_differences(effect, ctx_s3):
 
 
 def test_pairs_and_refinement_in_a_worker_while_calibrating_give_the_same_answer(ctx_p2):
-    # with workers, pairs and refinement run in a forked process during the calibration: same tables as serial
+    # with workers, pairs and refinement, the Bayes evidence and the power per protocol run in a forked process
+    # during the calibration: same tables and readings as serial
     from neckstrength.gap.engine import CalibrationSettings
+    from neckstrength.gap.evidence import EvidenceSettings
+    from neckstrength.gap.protocols import ProtocolSettings
 
     sim = Simulator(ctx_p2, base_instance(ctx_p2))
     rng = np.random.default_rng(4)
@@ -209,10 +212,17 @@ def test_pairs_and_refinement_in_a_worker_while_calibrating_give_the_same_answer
     s = dg.DiagnosisSettings(effects=("cocontraction", "kinematic", "origin_offset"), grid_points=3, folds=4,
                              pairs_top=3, pair_grid_top=2, refine_iter=2, bootstrap=50, starts=1, reach_samples=0,
                              reach_iter=0, fit=FitSettings(max_iter=6), seed=5,
-                             calibration=CalibrationSettings(replicates=4, power_replicates=0, max_iter=6))
+                             calibration=CalibrationSettings(replicates=4, power_replicates=2, power_sizes=(1.0,),
+                                                             sensitivity=False, max_iter=6),
+                             evidence=EvidenceSettings(n_grid=3, element_draws=20, fit_starts=1, refit_top=1,
+                                                       refit_starts=0, sample_points=8, decides=True),
+                             protocols=ProtocolSettings())
     one = dg.diagnose(ctx_p2, [dg.BlindData("p", T)], s)[0]
     two = dg.diagnose(ctx_p2, [dg.BlindData("p", T)], s, workers=2)[0]
     assert any("+" in c for c in one.effects["candidate"])            # pairs were fitted
     pd.testing.assert_frame_equal(one.effects, two.effects)
     pd.testing.assert_frame_equal(one.strengths, two.strengths)
-    assert one.summary["decision"] == two.summary["decision"]
+    assert one.summary["decision"] == two.summary["decision"] and one.summary["decided_by"] == "evidence"
+    assert one.summary["evidence"] == two.summary["evidence"] and len(one.summary["evidence"]["top3"]) == 3
+    pd.testing.assert_frame_equal(one.protocols, two.protocols)
+    assert len(one.protocols) and one.summary["protocol_advice"] == two.summary["protocol_advice"]
