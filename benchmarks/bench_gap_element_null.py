@@ -33,6 +33,8 @@ def main(argv=None) -> pd.DataFrame:
     ap.add_argument("--rich-controls", type=int, default=10)
     ap.add_argument("--replicates", type=int, default=15, help="cases per effect truth (the design's; they are "
                                                                 "drawn, not diagnosed)")
+    ap.add_argument("--element-draws", type=int, default=None, help="the element null's draws (default: the config's)")
+    ap.add_argument("--truths", default="none,rich96", help="which cases (comma-separated truths)")
     ap.add_argument("--evidence", action="store_true", help="also the full evidence (refits; about 5 s per case)")
     ap.add_argument("--out", default=None, help="CSV of the per-control table")
     a = ap.parse_args(argv)
@@ -50,10 +52,14 @@ def main(argv=None) -> pd.DataFrame:
     cases = generate_truth_cases(TruthSetup.of(ctx0), cs, derive_rng(cfg["seed"], f"gap-users/{a.model}"))
     ctx, ds, _ = settings_for(cfg, a.model, 19, [c.repeats_row() for c in cases])
     es = ds.evidence
+    if a.element_draws is not None:
+        from dataclasses import replace
+
+        es = replace(es, element_draws=int(a.element_draws))
     ex = ev.Explanations(ctx, list(ds.effects), es)
     rows = []
     for c in cases:
-        if c.truth not in ("none", "rich96"):
+        if c.truth not in a.truths.split(","):
             continue
         y, s = np.log(c.forces), float(c.noise_sd)
         rng = derive_rng(ds.seed, f"gap/evidence/{c.name}")
@@ -68,7 +74,7 @@ def main(argv=None) -> pd.DataFrame:
             row.update(p_no_effect=r.p_no_effect, most_probable=r.best, named=r.named)
         rows.append(row)
     tab = pd.DataFrame(rows)
-    print(f"{a.model}, seed {cfg['seed']}: {len(tab)} controls; chi-square of 25 tests at the base fit "
+    print(f"{a.model}, seed {cfg['seed']}: {len(tab)} cases; chi-square of 25 tests at the base fit "
           f"(strength SD {es.strength_sd}, element spread {es.element_spread}, {es.element_draws} draws)")
     print(tab.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     g = tab.groupby("truth")[["chi2_none", "chi2_none_elements"]].agg(["mean", "median"])
