@@ -176,6 +176,20 @@ def test_evidence_as_the_decision_keeps_the_calibrated_test_beside_it(directions
     # a most probable effect that does not fit is not named, and the decision says why
     nf = evidence_decision({**d.summary, "evidence": {**ev, "named": "none", "fit_p_best_effect": 1e-6}})
     assert nf["named"] == "none" and "does not fit" in nf["decision"]
+    # a remainder the calibrated test finds consistent with noise, where nothing fits (the most probable
+    # explanation fails its chi-square check): not noise, and the report says so; where it fits, unchanged
+    quiet = {**d.summary, "remainder_tested": True, "remainder_unexplained": False, "p_remainder_gap": 0.4,
+             "remainder": "the remaining held-out gap is consistent with noise"}
+    bad = {**ev, "named": "none", "most_probable": "none", "fit_p_most_probable": 2e-5, "fits": False}
+    nn = evidence_decision({**quiet, "evidence": bad})
+    assert nn["remainder_unexplained"] is True and nn["remainder"].startswith("the remaining gap is not explained")
+    assert "chi-square p = 2e-05 < 0.001" in nn["remainder"] and "(p = 0.4)" in nn["remainder"]
+    assert nn["remainder_calibrated"] == quiet["remainder"]
+    assert "remainder" not in evidence_decision({**quiet, "evidence": ev})
+    from neckstrength.gap.scoring import case_row
+
+    assert case_row("x", "none", "none", [], {**quiet, **nn}, d.effects)["consistent_with_noise"] is False
+    assert case_row("x", "none", "none", [], quiet, d.effects)["consistent_with_noise"] is True
 
 
 def _write(diag, directions, out, a3=None):

@@ -733,9 +733,21 @@ def evidence_decision(summary: Mapping) -> dict:
     # the choices the answer depends on, where it is printed
     text = text[:-1] + (f"; prior P(no effect) {e['prior_no_effect']:g}, noise {e['noise_sigma']:.3f}, strengths to a "
                         f"log SD of {e['strength_sd']:g})")
-    return {"named_calibrated": summary.get("named", summary.get("chosen", "none")),
-            "decision_calibrated": summary.get("decision", ""), "named": e["named"], "decision": text,
-            "decided_by": "evidence"}
+    out = {"named_calibrated": summary.get("named", summary.get("chosen", "none")),
+           "decision_calibrated": summary.get("decision", ""), "named": e["named"], "decision": text,
+           "decided_by": "evidence"}
+    # the remainder: where the calibrated test finds it consistent with noise but no explanation fits the data at
+    # this noise (the evidence's most probable one, "no effect" included, fails its chi-square check), the data
+    # decide against the remainder test: the remainder is not noise
+    if summary.get("remainder_tested") and summary.get("remainder_unexplained") is False \
+            and not e.get("fits", True):
+        out.update({
+            "remainder_calibrated": summary.get("remainder", ""), "remainder_unexplained": True,
+            "remainder": (f"the remaining gap is not explained: no explanation fits it at this noise (Bayes evidence: "
+                          f"the most probable, {e['most_probable']}, chi-square p = {e['fit_p_most_probable']:.2g} < "
+                          f"{e['fit_alpha']:g}); the calibrated remainder test alone finds it consistent with noise "
+                          f"(p = {summary.get('p_remainder_gap', float('nan')):.2g})")})
+    return out
 
 
 #: the name the decision gives a remainder explained by aiming scatter (:mod:`neckstrength.gap.scatter`)

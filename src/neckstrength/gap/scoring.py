@@ -73,7 +73,9 @@ def _evidence_columns(ev: Mapping | None) -> dict:
         return {}
     return {"evidence_named": str(ev.get("named", "none")), "evidence_best_effect": str(ev.get("best_effect", "")),
             "evidence_p_no_effect": float(ev.get("p_no_effect", np.nan)),
-            "evidence_fit_p_best_effect": float(ev.get("fit_p_best_effect", np.nan))}
+            "evidence_fit_p_best_effect": float(ev.get("fit_p_best_effect", np.nan)),
+            "evidence_most_probable": str(ev.get("most_probable", "")),
+            "evidence_fit_p_most_probable": float(ev.get("fit_p_most_probable", np.nan))}
 
 
 def score_cases(rows: Sequence[Mapping], quantile: float = 0.95, noise_multiple: float = 3.0
