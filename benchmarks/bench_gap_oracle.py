@@ -149,11 +149,12 @@ class DiagnosisFamilies:
     its candidates on their screen grids, its aiming-scatter model, its element null as a second "no effect"), with
     :class:`Oracle`'s interface."""
 
-    def __init__(self, setup, ctx, effects, repeats: int, element_draws: int):
+    def __init__(self, setup, ctx, effects, repeats: int, element_draws: int, element_centred: bool = False):
         from neckstrength.gap.evidence import EvidenceSettings, Explanations
 
         self.setup = setup
-        self.e = Explanations(ctx, effects, EvidenceSettings(repeats=repeats, element_draws=element_draws))
+        self.e = Explanations(ctx, effects, EvidenceSettings(repeats=repeats, element_draws=element_draws,
+                                                             element_centred=element_centred))
         self.repeats = repeats
 
     def fit_base(self, y, sigma):
@@ -210,7 +211,8 @@ def score(rows: pd.DataFrame, thresholds, fit_alpha: float | None = None) -> pd.
 _W = {}
 
 
-def _init(cfg_path, model, cs, scales, directions, element_draws, families: str = "truths"):
+def _init(cfg_path, model, cs, scales, directions, element_draws, families: str = "truths",
+          element_centred: bool = False):
     import sys
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -222,7 +224,7 @@ def _init(cfg_path, model, cs, scales, directions, element_draws, families: str 
     ctx, _, effects = settings_for(cfg, model, 1, ())
     setup = TruthSetup.of(ctx)
     if families == "diagnosis":
-        oracles = {1: DiagnosisFamilies(setup, ctx, effects, cs.repeats, element_draws)}
+        oracles = {1: DiagnosisFamilies(setup, ctx, effects, cs.repeats, element_draws, element_centred)}
     else:
         oracles = {k: Oracle(setup, cs, k, directions, element_draws) for k in scales}
     _W.update(seed=cfg["seed"], oracles=oracles, setup=setup)
@@ -280,6 +282,8 @@ def main(argv=None) -> dict:
                     "element null")
     ap.add_argument("--fit-alpha", type=float, default=0.001, help="rules that also need the named effect to fit: "
                     "its best chi-square p-value (K degrees of freedom) at least this")
+    ap.add_argument("--element-centred", action="store_true", help="with --families diagnosis: the element null's "
+                    "mean shift without its part in the strengths' span (EvidenceSettings.element_centred)")
     ap.add_argument("--check", action="store_true", help="also with every grid and draw count doubled")
     ap.add_argument("--jobs", type=int, default=1, help="processes")
     ap.add_argument("--force", action="store_true", help="replace the files of an OUT this script wrote before")
@@ -301,7 +305,7 @@ def main(argv=None) -> dict:
     sds = [float(x) for x in a.strength_sd.split(",") if x]
     if a.families == "diagnosis":
         scales = (1,)
-    _init(a.config, model, cs, scales, a.directions, a.element_draws, a.families)
+    _init(a.config, model, cs, scales, a.directions, a.element_draws, a.families, a.element_centred)
     seed = cfg["seed"] if a.seed is None else a.seed
     _W["seed"] = seed
     setup = _W["setup"]
@@ -374,7 +378,8 @@ def main(argv=None) -> dict:
     info = {"seed": seed, "stream": stream, "oracle_stream": "gap-oracle", "cases": len(cases),
             "detectable_from": a.cases, "wall_s": time.perf_counter() - t0, "strength_sd": sds,
             "directions": a.directions, "element_draws": a.element_draws, "check": a.check, "jobs": a.jobs,
-            "plug_in": a.plug_in, "families": a.families, "noise": a.noise}
+            "plug_in": a.plug_in, "families": a.families, "noise": a.noise,
+            "element_centred": a.element_centred}
     atomic_write_text(json.dumps(info, indent=2), out / "oracle_summary.json")
     pd.set_option("display.width", 220)
     for (k, sd), g in df.groupby(["grid_scale", "strength_sd"]):

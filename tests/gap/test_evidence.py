@@ -94,6 +94,32 @@ def test_explanations_of_a_context_prior_and_a_noise_only_data_set(ctx_s3):
     assert np.all(np.isfinite(res.strengths)) and res.settings.strength_sd == 0.3
 
 
+
+def test_centred_element_null_drops_the_strength_like_part_of_its_shift(ctx_s3):
+    """element_centred: the element null's mean shift keeps only its part outside the strengths' Jacobian span
+    (the fitted strengths carry the rest); off (the default), the shift is as drawn; the covariance is the same."""
+    from dataclasses import replace
+
+    from neckstrength.gap.evidence import EvidenceSettings, Explanations, log_jacobian
+
+    es = EvidenceSettings(element_draws=40, n_grid=5, refit_top=0, fit_starts=0)
+    ex = Explanations(ctx_s3, ["asymmetry"], es)
+    rng = np.random.default_rng(5)
+    f = ctx_s3.model.strengths * np.exp(rng.normal(0, 0.3, ex.pidx.max() + 1))[ex.pidx]
+    y = np.log(ex.base(f)) + rng.normal(0, 0.03, len(ex.N))
+    _, plain, _ = ex.explain(y, 0.03, np.random.default_rng(1), strengths=f)
+    ex.s = replace(es, element_centred=True)
+    _, cent, _ = ex.explain(y, 0.03, np.random.default_rng(1), strengths=f)
+    J = log_jacobian(ex.base, f, ex.pidx, base_rows=ex.base_rows)
+    lb = np.log(ex.base(f))
+    d0, d1 = plain["none_elements"][0][0][0] - lb, cent["none_elements"][0][0][0] - lb
+    assert np.linalg.norm(J.T @ d1) < 1e-8 * np.linalg.norm(J.T @ d0)          # nothing left in the span
+    assert np.linalg.norm(d0) > 0.05 and np.linalg.norm(d1) < 0.5 * np.linalg.norm(d0)
+    resid = d0 - J @ np.linalg.lstsq(J, d0, rcond=None)[0]
+    np.testing.assert_allclose(d1, resid, atol=1e-10)
+    np.testing.assert_allclose(plain["none_elements"][0][1], cent["none_elements"][0][1], rtol=1e-6, atol=1e-12)
+    np.testing.assert_array_equal(plain["none"][0][0], cent["none"][0][0])
+
 def test_participants_script_reports_that_no_explanation_fits_s003(tmp_path):
     """benchmarks/bench_gap_evidence_participants.py on S003 at the prior's noise 0.08: a most probable explanation
     with its posterior, and the fit check saying that it does not fit (the calibrated decision's remainder is

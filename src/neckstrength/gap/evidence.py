@@ -56,6 +56,9 @@ class EvidenceSettings:
     refitted from there looks better than "no effect"); ``refit_top`` effects, the most probable at the base fit,
     refitted under themselves from the baseline, the base fit and ``refit_starts`` random starts (the others stay
     at the base fit);
+    ``element_centred``: the element null's mean shift without its part in the span of the strengths' Jacobian
+    (which the fitted strengths already carry; off: the shift is added to forces whose strengths were fitted to
+    the data, so its strength-like part is counted twice; an experiment of 2026-11-28, not the default);
     ``decides``: the reading is the diagnosis's decision (the
     calibrated test then a second reading beside it; :func:`neckstrength.gap.diagnose.evidence_decision`)."""
 
@@ -74,6 +77,7 @@ class EvidenceSettings:
     refit_top: int = 3
     refit_starts: int = 3
     decides: bool = False
+    element_centred: bool = False
 
 
 def largest_of_normals(repeats: int) -> tuple[float, float]:
@@ -368,6 +372,12 @@ class Explanations:
         those refitted, they are not the answer's contenders)."""
         f = self.fit(y, sigma, rng) if strengths is None else np.asarray(strengths, float)
         sig, J = self.signatures(f, rng), log_jacobian(self.base, f, self.pidx, base_rows=self.base_rows)
+        if self.s.element_centred and "none_elements" in sig:
+            (mu, cov), = sig["none_elements"]
+            lb = np.log(self.base(f))
+            d = mu[0] - lb
+            d = d - J @ np.linalg.lstsq(J, d, rcond=None)[0]
+            sig["none_elements"] = [((lb + d)[None, :], cov)]
         Js = {t: J for t in sig}
         names = [n for n in self.sims if n in sig]
         ll0 = log_evidence({n: sig[n] for n in names}, J, y, sigma, self.s.strength_sd, self.s.repeats)
