@@ -1,0 +1,89 @@
+"""Run-to-run spread of the Bayes evidence's decision (issue 32): the same data, other random streams.
+
+The evidence draws random numbers for the base fit's starts, the refits' starts and the element null's draws; the
+diagnosis seeds them from the config's seed and the data set's name (``gap/evidence/{name}``). This script takes
+cases of a user-benchmark design (``bench_gap_users.py``'s generator and stream) and runs the evidence with
+``--streams`` other streams, (a) as shipped and (b) with the base fit held at the best of ``--fit-starts`` starts,
+and prints, per case, P(no effect) and the named effect of each stream: how often the decision depends on the
+stream, and whether the base fit is the part that moves it.
+
+    .venv/bin/python benchmarks/bench_gap_evidence_stability.py --config CONFIG_WITH_THE_DESIGN_SEED \
+        --cases u019,u056 --streams 6
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+
+def main(argv=None) -> pd.DataFrame:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--config", default="config/config.yaml", help="its seed makes the design")
+    ap.add_argument("--model", default="s3m24")
+    ap.add_argument("--cases", required=True, help="comma-separated case names (u001, ...)")
+    ap.add_argument("--streams", type=int, default=6)
+    ap.add_argument("--fit-starts", type=int, default=60, help="starts of the held base fit in (b)")
+    ap.add_argument("--controls", type=int, default=30)
+    ap.add_argument("--rich-controls", type=int, default=10)
+    ap.add_argument("--replicates", type=int, default=15)
+    ap.add_argument("--out", default=None, help="CSV of the per-case, per-stream table")
+    a = ap.parse_args(argv)
+    from bench_gap_users import settings_for
+
+    from neckstrength.config import load_config
+    from neckstrength.gap import evidence as ev
+    from neckstrength.gap.truths import CaseSettings, TruthSetup, generate_truth_cases
+    from neckstrength.seeds import derive_rng
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    cfg = load_config(a.config)
+    ctx0, _, _ = settings_for(cfg, a.model, 19, ())
+    cs = CaseSettings(replicates=a.replicates, controls=a.controls, rich_controls=a.rich_controls)
+    cases = {c.name: c for c in generate_truth_cases(TruthSetup.of(ctx0), cs,
+                                                      derive_rng(cfg["seed"], f"gap-users/{a.model}"))}
+    unknown = [n for n in a.cases.split(",") if n not in cases]
+    if unknown:
+        raise SystemExit(f"--cases: no {', '.join(unknown)} in this design ({len(cases)} cases)")
+    ctx, ds, _ = settings_for(cfg, a.model, 19, [c.repeats_row() for c in cases.values()])
+    es = ds.evidence
+    ex = ev.Explanations(ctx, list(ds.effects), es)
+    rows = []
+    for name in a.cases.split(","):
+        c = cases[name]
+        y, s = np.log(c.forces), float(c.noise_sd)
+        ex.s = replace(es, fit_starts=int(a.fit_starts))
+        held = ex.fit(y, s, derive_rng(ds.seed, f"stability/{name}"))
+        ex.s = es
+        for k in range(a.streams):
+            for mode, f in (("shipped", None), ("base fit held", held)):
+                r = ex.evidence(c.forces, s, derive_rng(ds.seed, f"stability/{name}/{k}"), strengths=f)
+                rows.append({"case": name, "truth": c.truth, "mode": mode, "stream": k,
+                             "p_no_effect": r.p_no_effect, "named": r.named, "best_effect": r.best_effect,
+                             "log_strength_norm": float(np.linalg.norm(np.log(r.strengths)))})
+        tab = pd.DataFrame([r for r in rows if r["case"] == name])
+        for mode, g in tab.groupby("mode", sort=False):
+            print(f"{name} ({c.truth}) {mode}: " + ", ".join(f"{p:.2g} {n}" for p, n in zip(g.p_no_effect, g.named)),
+                  flush=True)
+    tab = pd.DataFrame(rows)
+    flips = tab.groupby(["mode", "case"])["named"].nunique().gt(1).groupby("mode").sum()
+    print("\ncases whose named effect depends on the stream: " + "; ".join(f"{m} {int(v)} of {a.cases.count(',') + 1}"
+                                                                           for m, v in flips.items()))
+    print(f"{time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU, "
+          f"load {os.getloadavg()[0]:.1f}")
+    if a.out:
+        tab.to_csv(a.out, index=False)
+    return tab
+
+
+if __name__ == "__main__":
+    main()
