@@ -8,7 +8,7 @@ and prints, per case, P(no effect) and the named effect of each stream: how ofte
 stream, and whether the base fit is the part that moves it.
 
     .venv/bin/python benchmarks/bench_gap_evidence_stability.py --config CONFIG_WITH_THE_DESIGN_SEED \
-        --cases u019,u056 --streams 6
+        --cases u019,u056 --streams 6 [--valley 41]
 """
 
 from __future__ import annotations
@@ -26,6 +26,33 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
+def valley(ex, ev, case, y, sigma, n: int, rng) -> None:
+    """``n`` base fits (the baseline and random starts as :meth:`Explanations.fit` draws them), their MAP losses,
+    the largest log-strength difference of the next best from the best, and the evidence at the four best."""
+    s0 = ex.ctx.model.strengths
+    p = int(ex.pidx.max()) + 1
+    lvl = float(np.mean(y - np.log(ex.base(s0))))
+
+    def run(st=None):
+        return ev.fit_strengths_map(ex.base, s0, ex.pidx, y, sigma, ex.s.repeats, ex.s.fit_prior_sd,
+                                    base_rows=ex.base_rows, start=st, return_loss=True)
+
+    c0 = time.process_time()
+    fits = [run()] + [run(s0 * np.exp(lvl + rng.normal(0.0, 0.5 * ex.s.fit_prior_sd, p))[ex.pidx])
+                      for _ in range(n - 1)]
+    cpu = (time.process_time() - c0) / n
+    loss = np.array([f[1] for f in fits])
+    order = np.argsort(loss)
+    logf = np.array([np.log(f[0]) for f in fits])
+    far = [float(np.abs(logf[k] - logf[order[0]]).max()) for k in order[1:6]]
+    print(f"{case.name} valley: {n} base fits ({cpu:.3f} s CPU each), best MAP losses "
+          f"{', '.join(f'{v:.3g}' for v in loss[order][:6])}; next best from the best (max abs log strength) "
+          f"{', '.join(f'{v:.2f}' for v in far)}", flush=True)
+    for k in order[:4]:
+        r = ex.evidence(case.forces, sigma, np.random.default_rng(1), strengths=fits[k][0])
+        print(f"  loss {loss[k]:.3g}: P(no effect) {r.p_no_effect:.2g}, named {r.named}", flush=True)
+
+
 def main(argv=None) -> pd.DataFrame:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--config", default="config/config.yaml", help="its seed makes the design")
@@ -36,6 +63,8 @@ def main(argv=None) -> pd.DataFrame:
     ap.add_argument("--controls", type=int, default=30)
     ap.add_argument("--rich-controls", type=int, default=10)
     ap.add_argument("--replicates", type=int, default=15)
+    ap.add_argument("--valley", type=int, default=0, help="also: this many base fits from random starts per case, "
+                    "their MAP losses, how far apart the best ones lie, and the evidence at the four best")
     ap.add_argument("--out", default=None, help="CSV of the per-case, per-stream table")
     a = ap.parse_args(argv)
     from bench_gap_users import settings_for
@@ -70,6 +99,8 @@ def main(argv=None) -> pd.DataFrame:
                 rows.append({"case": name, "truth": c.truth, "mode": mode, "stream": k,
                              "p_no_effect": r.p_no_effect, "named": r.named, "best_effect": r.best_effect,
                              "log_strength_norm": float(np.linalg.norm(np.log(r.strengths)))})
+        if a.valley:
+            valley(ex, ev, c, y, s, int(a.valley), derive_rng(ds.seed, f"stability/{name}/valley"))
         tab = pd.DataFrame([r for r in rows if r["case"] == name])
         for mode, g in tab.groupby("mode", sort=False):
             print(f"{name} ({c.truth}) {mode}: " + ", ".join(f"{p:.2g} {n}" for p, n in zip(g.p_no_effect, g.named)),
