@@ -14,7 +14,6 @@ tests, strengths marginalised around the fit), and the most probable explanation
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
@@ -26,31 +25,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def main(argv=None) -> pd.DataFrame:
+    from bench_gap_users import add_design_args, design_from_args, finish
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--config", default="config/config.yaml", help="its seed makes the design")
-    ap.add_argument("--model", default="s3m24")
-    ap.add_argument("--controls", type=int, default=30)
-    ap.add_argument("--rich-controls", type=int, default=10)
-    ap.add_argument("--replicates", type=int, default=15, help="cases per effect truth (the design's; they are "
-                                                                "drawn, not diagnosed)")
+    add_design_args(ap)
     ap.add_argument("--element-draws", type=int, default=None, help="the element null's draws (default: the config's)")
     ap.add_argument("--truths", default="none,rich96", help="which cases (comma-separated truths)")
     ap.add_argument("--evidence", action="store_true", help="also the full evidence (refits; about 5 s per case)")
     ap.add_argument("--out", default=None, help="CSV of the per-control table")
     a = ap.parse_args(argv)
-    from bench_gap_users import settings_for
-
-    from neckstrength.config import load_config
     from neckstrength.gap import evidence as ev
-    from neckstrength.gap.truths import CaseSettings, TruthSetup, generate_truth_cases
     from neckstrength.seeds import derive_rng
 
     t0, c0 = time.perf_counter(), time.process_time()
-    cfg = load_config(a.config)
-    ctx0, _, _ = settings_for(cfg, a.model, 19, ())
-    cs = CaseSettings(replicates=a.replicates, controls=a.controls, rich_controls=a.rich_controls)
-    cases = generate_truth_cases(TruthSetup.of(ctx0), cs, derive_rng(cfg["seed"], f"gap-users/{a.model}"))
-    ctx, ds, _ = settings_for(cfg, a.model, 19, [c.repeats_row() for c in cases])
+    cfg, cases, ctx, ds = design_from_args(a)
     es = ds.evidence
     if a.element_draws is not None:
         from dataclasses import replace
@@ -79,11 +67,7 @@ def main(argv=None) -> pd.DataFrame:
     print(tab.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     g = tab.groupby("truth")[["chi2_none", "chi2_none_elements"]].agg(["mean", "median"])
     print("\n" + g.to_string(float_format=lambda v: f"{v:.1f}"))
-    print(f"\n{time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU, "
-          f"load {os.getloadavg()[0]:.1f}")
-    if a.out:
-        tab.to_csv(a.out, index=False)
-    return tab
+    return finish(tab, a.out, t0, c0)
 
 
 if __name__ == "__main__":

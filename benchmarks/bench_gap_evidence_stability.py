@@ -14,7 +14,6 @@ stream, and whether the base fit is the part that moves it.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from dataclasses import replace
@@ -26,20 +25,12 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
-def valley(ex, ev, case, y, sigma, n: int, rng) -> None:
-    """``n`` base fits (the baseline and random starts as :meth:`Explanations.fit` draws them), their MAP losses,
-    the largest log-strength difference of the next best from the best, and the evidence at the four best."""
-    s0 = ex.ctx.model.strengths
-    p = int(ex.pidx.max()) + 1
-    lvl = float(np.mean(y - np.log(ex.base(s0))))
-
-    def run(st=None):
-        return ev.fit_strengths_map(ex.base, s0, ex.pidx, y, sigma, ex.s.repeats, ex.s.fit_prior_sd,
-                                    base_rows=ex.base_rows, start=st, return_loss=True)
-
+def valley(ex, case, y, sigma, n: int, rng) -> None:
+    """The base fits of ``n`` starts (the baseline and ``n - 1`` random ones, as :meth:`Explanations.fit` draws
+    them), their MAP losses, the largest log-strength difference of the next best from the best, and the evidence at
+    the four best."""
     c0 = time.process_time()
-    fits = [run()] + [run(s0 * np.exp(lvl + rng.normal(0.0, 0.5 * ex.s.fit_prior_sd, p))[ex.pidx])
-                      for _ in range(n - 1)]
+    fits = ex.fit(y, sigma, rng, n_random=n - 1, return_all=True)
     cpu = (time.process_time() - c0) / n
     loss = np.array([f[1] for f in fits])
     order = np.argsort(loss)
@@ -54,36 +45,26 @@ def valley(ex, ev, case, y, sigma, n: int, rng) -> None:
 
 
 def main(argv=None) -> pd.DataFrame:
+    from bench_gap_users import add_design_args, design_from_args, finish
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--config", default="config/config.yaml", help="its seed makes the design")
-    ap.add_argument("--model", default="s3m24")
+    add_design_args(ap)
     ap.add_argument("--cases", required=True, help="comma-separated case names (u001, ...)")
     ap.add_argument("--streams", type=int, default=6)
     ap.add_argument("--fit-starts", type=int, default=60, help="starts of the held base fit in (b)")
-    ap.add_argument("--controls", type=int, default=30)
-    ap.add_argument("--rich-controls", type=int, default=10)
-    ap.add_argument("--replicates", type=int, default=15)
     ap.add_argument("--valley", type=int, default=0, help="also: this many base fits from random starts per case, "
                     "their MAP losses, how far apart the best ones lie, and the evidence at the four best")
     ap.add_argument("--out", default=None, help="CSV of the per-case, per-stream table")
     a = ap.parse_args(argv)
-    from bench_gap_users import settings_for
-
-    from neckstrength.config import load_config
     from neckstrength.gap import evidence as ev
-    from neckstrength.gap.truths import CaseSettings, TruthSetup, generate_truth_cases
     from neckstrength.seeds import derive_rng
 
     t0, c0 = time.perf_counter(), time.process_time()
-    cfg = load_config(a.config)
-    ctx0, _, _ = settings_for(cfg, a.model, 19, ())
-    cs = CaseSettings(replicates=a.replicates, controls=a.controls, rich_controls=a.rich_controls)
-    cases = {c.name: c for c in generate_truth_cases(TruthSetup.of(ctx0), cs,
-                                                      derive_rng(cfg["seed"], f"gap-users/{a.model}"))}
+    cfg, case_list, ctx, ds = design_from_args(a)
+    cases = {c.name: c for c in case_list}
     unknown = [n for n in a.cases.split(",") if n not in cases]
     if unknown:
         raise SystemExit(f"--cases: no {', '.join(unknown)} in this design ({len(cases)} cases)")
-    ctx, ds, _ = settings_for(cfg, a.model, 19, [c.repeats_row() for c in cases.values()])
     es = ds.evidence
     ex = ev.Explanations(ctx, list(ds.effects), es)
     rows = []
@@ -100,7 +81,7 @@ def main(argv=None) -> pd.DataFrame:
                              "p_no_effect": r.p_no_effect, "named": r.named, "best_effect": r.best_effect,
                              "log_strength_norm": float(np.linalg.norm(np.log(r.strengths)))})
         if a.valley:
-            valley(ex, ev, c, y, s, int(a.valley), derive_rng(ds.seed, f"stability/{name}/valley"))
+            valley(ex, c, y, s, int(a.valley), derive_rng(ds.seed, f"stability/{name}/valley"))
         tab = pd.DataFrame([r for r in rows if r["case"] == name])
         for mode, g in tab.groupby("mode", sort=False):
             print(f"{name} ({c.truth}) {mode}: " + ", ".join(f"{p:.2g} {n}" for p, n in zip(g.p_no_effect, g.named)),
@@ -109,11 +90,7 @@ def main(argv=None) -> pd.DataFrame:
     flips = tab.groupby(["mode", "case"])["named"].nunique().gt(1).groupby("mode").sum()
     print("\ncases whose named effect depends on the stream: " + "; ".join(f"{m} {int(v)} of {a.cases.count(',') + 1}"
                                                                            for m, v in flips.items()))
-    print(f"{time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU, "
-          f"load {os.getloadavg()[0]:.1f}")
-    if a.out:
-        tab.to_csv(a.out, index=False)
-    return tab
+    return finish(tab, a.out, t0, c0)
 
 
 if __name__ == "__main__":

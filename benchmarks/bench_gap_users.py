@@ -64,6 +64,46 @@ def settings_for(cfg, model, n_null: int, repeats, null_truth: str | None = None
     return ctx, ds, effects
 
 
+def add_design_args(ap) -> None:
+    """The arguments that name a design of this benchmark (for scripts that look at its cases again)."""
+    ap.add_argument("--config", default="config/config.yaml", help="its seed makes the design")
+    ap.add_argument("--model", default="s3m24")
+    ap.add_argument("--controls", type=int, default=30)
+    ap.add_argument("--rich-controls", type=int, default=10)
+    ap.add_argument("--replicates", type=int, default=15, help="cases per effect truth")
+
+
+def design_from_args(a):
+    """``(cfg, cases, ctx, ds)`` of the design :func:`add_design_args`' arguments name."""
+    from neckstrength.config import load_config
+    from neckstrength.gap.truths import CaseSettings
+
+    cfg = load_config(a.config)
+    cs = CaseSettings(replicates=a.replicates, controls=a.controls, rich_controls=a.rich_controls)
+    return (cfg, *design_cases(cfg, a.model, cs))
+
+
+def finish(tab, out, t0: float, c0: float):
+    """Print the wall and CPU time since ``t0`` / ``c0`` and the load, write ``tab`` to ``out`` (when given)."""
+    print(f"\n{time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU, "
+          f"load {os.getloadavg()[0]:.1f}")
+    if out:
+        tab.to_csv(out, index=False)
+    return tab
+
+
+def design_cases(cfg, model: str, cs, n_null: int = 19):
+    """A design's cases as this benchmark draws them (``cfg``'s seed, stream ``gap-users/{model}``, case settings
+    ``cs``) and the context and diagnosis settings that see their repeats: ``(cases, ctx, ds)``."""
+    from neckstrength.gap.truths import TruthSetup, generate_truth_cases
+    from neckstrength.seeds import derive_rng
+
+    ctx0, _, _ = settings_for(cfg, model, n_null, ())
+    cases = generate_truth_cases(TruthSetup.of(ctx0), cs, derive_rng(cfg["seed"], f"gap-users/{model}"))
+    ctx, ds, _ = settings_for(cfg, model, n_null, [c.repeats_row() for c in cases])
+    return cases, ctx, ds
+
+
 def power_of_targets(ctx, part, diags, ds, effects, jobs, cfg) -> dict:
     """Per case whose target is a candidate: whether the diagnosis's own power analysis (the config's power sizes
     and replicates at the case's measured noise, from its fitted base model) calls the target detectable at some

@@ -282,10 +282,11 @@ class Explanations:
         return self.base_sim.forces(np.atleast_2d(np.asarray(F, float)))
 
     def fit(self, y: np.ndarray, sigma: float, rng: np.random.Generator | None = None, one=None, many=None,
-            starts: Sequence[np.ndarray] = (), n_random: int | None = None) -> np.ndarray:
+            starts: Sequence[np.ndarray] = (), n_random: int | None = None, return_all: bool = False):
         """The most probable strengths of the base model (or of the model whose forces ``one`` / ``many`` give):
         from the baseline scaled to the forces, from each of ``starts`` and, with ``rng``, from ``n_random``
-        (default ``fit_starts``) random starts around the baseline; the fit of the smallest MAP objective."""
+        (default ``fit_starts``) random starts around the baseline; the fit of the smallest MAP objective
+        (``return_all``: every fit as ``(strengths, loss)``, in start order)."""
         one, many = one or self.base, many or self.base_rows
         s0 = self.ctx.model.strengths
 
@@ -300,7 +301,7 @@ class Explanations:
             lvl = float(np.mean(np.asarray(y, float) - np.log(one(s0))))
             for _ in range(n):
                 fits.append(run(s0 * np.exp(lvl + rng.normal(0.0, 0.5 * self.s.fit_prior_sd, p))[self.pidx]))
-        return min(fits, key=lambda fl: fl[1])[0]
+        return fits if return_all else min(fits, key=lambda fl: fl[1])[0]
 
     def signatures(self, f: np.ndarray, rng: np.random.Generator) -> Signatures:
         """Every explanation's component(s) at strengths ``f`` (see the module docstring). Sets :attr:`live`: per
