@@ -55,6 +55,7 @@ from the seed and the data set's name.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 import pandas as pd
@@ -487,19 +488,22 @@ def _power_table(cal: Calibration, i: int, effects: list[Effect], cs: Calibratio
 
 def calibrate(ctx: GapContext, names: list[str], folds: np.ndarray, T: np.ndarray, f_fit: np.ndarray,
               phi_fit: np.ndarray, rms_obs: np.ndarray, effects: list[Effect], s: DiagnosisSettings,
-              say=None, workers: int = 1, checkpoints=None) -> list[Calibration]:
+              say=None, workers: int = 1, checkpoints=None, noises: Sequence[NoiseLevel] | None = None
+              ) -> list[Calibration]:
     """Null and power replicates for every data set (``names``, fold splits, measured forces ``T``, base fit
     forces ``f_fit`` and log strengths ``phi_fit``, held-out RMS log residuals per candidate ``rms_obs``).
     With ``power_replicates`` 0 there is no power table (the decision is the same: every data set is screened
     on its own, whatever else is screened with it); :func:`power_for` adds one later. The power replicates are
     screened after the null in two stages (:func:`_power_hits`: each with its own effect first, with every effect
     only if it passes that effect's necessary test), the same table as screening each with every effect at once
-    (before 2026-11-28) at about half the cost."""
+    (before 2026-11-28) at about half the cost. ``noises``: each data set's noise level where the caller has it
+    already (else :func:`estimate_noise` of ``rms_obs`` and the settings)."""
     say = say or (lambda msg: None)
     cs: CalibrationSettings = s.calibration
     R, nd, K = int(cs.replicates), len(names), ctx.K
     E = [e.name for e in effects]
-    sig = [estimate_noise(rms_obs[i], cs.noise, n, cs.repeats, cs.noise_prior) for i, n in enumerate(names)]
+    sig = list(noises) if noises is not None else [estimate_noise(rms_obs[i], cs.noise, n, cs.repeats,
+                                                                  cs.noise_prior) for i, n in enumerate(names)]
     sims, meta = [], []                                    # simulated data sets and (data set, kind, effect, size)
     sim_base = Simulator(ctx, base_instance(ctx))
     if cs.null_truth not in NULL_TRUTHS:

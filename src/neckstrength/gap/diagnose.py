@@ -362,13 +362,15 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
     # the Bayes evidence and the power per protocol need only the forces, the base fit and the noise level (known
     # before the calibration): with workers they are made in the background process too
     cs = s.calibration
+    noises = [estimate_noise(rms[i], cs.noise, d.name, cs.repeats, cs.noise_prior) for i, d in enumerate(data)] \
+        if cs.replicates > 0 else []
 
     def readings() -> list[dict]:
         out = []
         for i, d in enumerate(data):
             r: dict = {}
             if cs.replicates > 0:
-                nz = estimate_noise(rms[i], cs.noise, d.name, cs.repeats, cs.noise_prior)
+                nz = noises[i]
                 if s.evidence is not None:
                     r["evidence"] = evidence_reading(ctx, d.name, np.asarray(d.forces, float), nz, s)
                 if s.protocols is not None:
@@ -387,7 +389,7 @@ def _diagnose_batch(ctx: GapContext, data: Sequence[BlindData], settings: Diagno
     with (fork_background(tail_in_worker) if background else contextlib.nullcontext()) as fut:
         if s.calibration.replicates > 0:
             cal = calibrate(ctx, names, folds, Tm, eng.results[()]["forces"][pf], eng.results[()]["phi"][pf], rms,
-                            effects, s, say, workers, checkpoints)
+                            effects, s, say, workers, checkpoints, noises=noises)
             say(f"calibration done ({s.calibration.replicates} noise-only replicates per data set)")
         if fut is not None:
             results, n_fits, parts, refined, evid = fut.result()
